@@ -1,0 +1,1 @@
+"""Model library: the lecture examples, pendulums, chains, delta robot, test-set problems."""

@@ -1,0 +1,495 @@
+"""The model: variables, derivatives, equations, parameters, and their validation.
+
+A :class:`Model` holds a DAE as a person writes it, ``F(t, x, x', x'', ..., z, u, p) = 0``,
+in residual form. Variables are CasADi SX column vectors; their elements are named ``p[0]``,
+derivatives ``der(p)[0]``, ``der(p,2)[0]`` (scalars: ``z``, ``der(z)``).
+
+Example
+-------
+>>> import casadi as ca, daekit as dk
+>>> m = dk.Model("pendulum")
+>>> p = m.state("p", 2); v = m.state("v", 2); z = m.algebraic("z")
+>>> _ = m.equation(m.der(p) - v, name="kinematics")
+>>> _ = m.equation(m.der(v) - (ca.DM([0, -9.81]) - z * p), name="newton")
+>>> _ = m.equation(0.5 * (ca.dot(p, p) - 1), name="rod")
+>>> m.n_equations, m.n_unknowns
+(5, 5)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .errors import ModelError, StructuralError
+
+__all__ = ["Model", "Variable", "Equation", "parse_name", "element_name"]
+
+UNKNOWN_KINDS = ("state", "algebraic", "variable")
+KINDS = UNKNOWN_KINDS + ("control", "parameter")
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
+_REF_RE = re.compile(
+    r"^\s*(?:der\(\s*(?P<dname>[A-Za-z_][A-Za-z0-9_.]*)\s*(?:,\s*(?P<order>\d+)\s*)?\)"
+    r"|(?P<name>[A-Za-z_][A-Za-z0-9_.]*))\s*(?:\[\s*(?P<index>\d+)\s*\])?\s*$"
+)
+
+
+def element_name(name: str, size: int, index: int, order: int = 0) -> str:
+    """Name of one element: ``p[0]``, ``der(p)[0]``, ``der(p,2)``, ``z``."""
+    base = name if order == 0 else (f"der({name})" if order == 1 else f"der({name},{order})")
+    return base if size == 1 else f"{base}[{index}]"
+
+
+def parse_name(text: str) -> tuple[str, int, int | None]:
+    """Parse ``"der(p,2)[1]"`` into ``("p", 2, 1)``; ``"p"`` into ``("p", 0, None)``.
+
+    >>> parse_name("der(p)[0]")
+    ('p', 1, 0)
+    """
+    mt = _REF_RE.match(text)
+    if not mt:
+        raise ModelError(
+            f"cannot read the name {text!r}: use 'p', 'p[0]', 'der(p)', 'der(p)[0]' or 'der(p,2)'"
+        )
+    if mt.group("dname"):
+        order = int(mt.group("order") or 1)
+        if order < 1:
+            raise ModelError(f"in {text!r}: the derivative order must be at least 1")
+        name = mt.group("dname")
+    else:
+        order, name = 0, mt.group("name")
+    idx = mt.group("index")
+    return name, order, (int(idx) if idx is not None else None)
+
+
+@dataclass
+class Variable:
+    """One declared (vector) variable of a model."""
+
+    name: str
+    kind: str
+    size: int
+    sym: ca.SX
+    default: np.ndarray | None = None
+    ders: dict[int, ca.SX] = field(default_factory=dict)
+
+    def der(self, order: int) -> ca.SX:
+        """The SX symbol of the ``order``-th derivative (created on first use)."""
+        if order == 0:
+            return self.sym
+        if order not in self.ders:
+            self.ders[order] = ca.vertcat(
+                *[ca.SX.sym(element_name(self.name, self.size, i, order)) for i in range(self.size)]
+            )
+        return self.ders[order]
+
+    def element(self, index: int, order: int = 0) -> str:
+        return element_name(self.name, self.size, index, order)
+
+
+@dataclass
+class Equation:
+    """One declared (vector) equation ``expr == 0``."""
+
+    name: str
+    expr: ca.SX  # column vector
+
+    @property
+    def size(self) -> int:
+        return int(self.expr.numel())
+
+    def element(self, index: int) -> str:
+        return self.name if self.size == 1 else f"{self.name}[{index}]"
+
+
+@dataclass
+class Incidence:
+    """Sparse Sigma matrix of a model: ``vals[k]`` is the highest derivative order of unknown
+    ``cols[k]`` in equation element ``rows[k]``; absent entries are -infinity."""
+
+    n_equations: int
+    n_unknowns: int
+    rows: np.ndarray
+    cols: np.ndarray
+    vals: np.ndarray
+
+
+class Model:
+    """A differential-algebraic model ``F(t, x, x', ..., z, u, p) = 0`` in residual form.
+
+    Parameters
+    ----------
+    name : str
+        A name for messages and reports.
+
+    Declare unknowns with :meth:`state` (its derivative appears), :meth:`algebraic` (its
+    derivative does not appear) or :meth:`variable` (either; daekit finds out), inputs with
+    :meth:`control`, named constants with :meth:`parameter`; write equations with
+    :meth:`equation` using :meth:`der` and :attr:`t`.
+
+    Example
+    -------
+    >>> import daekit as dk
+    >>> m = dk.Model("decay")
+    >>> x = m.state("x")
+    >>> k = m.parameter("k", 0.5)
+    >>> _ = m.equation(m.der(x) + k * x, name="decay")
+    >>> dk.analyze(m).index
+    0
+    """
+
+    def __init__(self, name: str = "model") -> None:
+        self.name = name
+        self.t = ca.SX.sym("t")
+        self.variables: dict[str, Variable] = {}
+        self.equations: list[Equation] = []
+        # element hash -> (variable, element index, derivative order)
+        self._lookup: dict[int, tuple[Variable, int, int]] = {}
+        self._cache: dict[str, object] = {}
+
+    # ------------------------------------------------------------------ declarations
+    def _declare(self, name: str, kind: str, size: int, default=None) -> ca.SX:
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise ModelError(
+                f"model {self.name!r}: {name!r} is not a valid variable name "
+                "(letters, digits, '_' and '.', not starting with a digit)"
+            )
+        if name in self.variables or name == "t":
+            raise ModelError(f"model {self.name!r}: the name {name!r} is declared twice")
+        if not isinstance(size, (int, np.integer)) or size < 1:
+            raise ModelError(f"model {self.name!r}: variable {name!r} needs a size >= 1, got {size!r}")
+        size = int(size)
+        sym = ca.vertcat(*[ca.SX.sym(element_name(name, size, i)) for i in range(size)])
+        var = Variable(name, kind, size, sym, default)
+        self.variables[name] = var
+        for i in range(size):
+            self._lookup[sym[i].element_hash()] = (var, i, 0)
+        self._cache.clear()
+        return sym
+
+    def state(self, name: str, size: int = 1) -> ca.SX:
+        """Declare an unknown whose time derivative appears in the equations."""
+        return self._declare(name, "state", size)
+
+    def algebraic(self, name: str, size: int = 1) -> ca.SX:
+        """Declare an unknown whose time derivative does not appear (e.g. a constraint force)."""
+        return self._declare(name, "algebraic", size)
+
+    def variable(self, name: str, size: int = 1) -> ca.SX:
+        """Declare an unknown without saying whether it is differential or algebraic."""
+        return self._declare(name, "variable", size)
+
+    def control(self, name: str, size: int = 1) -> ca.SX:
+        """Declare an input: a given function of time in simulation, optimized in an OCP."""
+        return self._declare(name, "control", size)
+
+    def parameter(self, name: str, value=0.0) -> ca.SX:
+        """Declare a named constant with a default ``value`` (scalar or vector)."""
+        arr = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+        if not np.all(np.isfinite(arr)):
+            raise ModelError(f"model {self.name!r}: parameter {name!r} has a non-finite value {value!r}")
+        return self._declare(name, "parameter", arr.size, default=arr)
+
+    def der(self, x, k: int = 1) -> ca.SX:
+        """The ``k``-th time derivative of a model variable (or of some of its elements).
+
+        ``m.der(p)`` is the derivative symbol of ``p``; ``m.der(p[0], 2)`` the second derivative
+        of its first element; ``m.der(m.der(p))`` equals ``m.der(p, 2)``.
+        """
+        if not isinstance(k, (int, np.integer)) or k < 1:
+            raise ModelError(f"model {self.name!r}: der(x, k) needs an integer k >= 1, got {k!r}")
+        if not isinstance(x, ca.SX):
+            raise ModelError(
+                f"model {self.name!r}: der() takes a model variable (a CasADi SX symbol returned by "
+                f"m.state/m.variable/m.control), got {type(x).__name__}"
+            )
+        out = []
+        for i in range(x.numel()):
+            e = x[i]
+            hit = self._lookup.get(e.element_hash()) if e.is_symbolic() else None
+            if hit is None:
+                what = str(e) if e.numel() == 1 else "an expression"
+                if e.is_symbolic():
+                    raise ModelError(
+                        f"model {self.name!r}: der({what}): {what!r} is not a variable of this model; "
+                        "declare it with m.state(...) or m.variable(...)"
+                    )
+                raise ModelError(
+                    f"model {self.name!r}: der({what}) is the derivative of an expression, not of a "
+                    "model variable; introduce an algebraic variable w with the equation w - (expr) "
+                    "and use der(w)"
+                )
+            var, idx, order = hit
+            if var.kind == "algebraic":
+                raise ModelError(
+                    f"model {self.name!r}: the derivative of algebraic variable {var.name!r} is used; "
+                    f"declare {var.name!r} with m.state(...) or m.variable(...) instead"
+                )
+            if var.kind == "parameter":
+                raise ModelError(
+                    f"model {self.name!r}: der({var.name}) is the derivative of a parameter "
+                    "(a constant); use m.state or m.control for a time-varying quantity"
+                )
+            new = var.der(order + int(k))
+            el = new[idx]
+            self._lookup.setdefault(el.element_hash(), (var, idx, order + int(k)))
+            out.append(el)
+        self._cache.clear()
+        return ca.vertcat(*out) if len(out) != 1 else out[0]
+
+    def equation(self, expr, name: str | None = None) -> ca.SX:
+        """Add the equation ``expr == 0`` (any shape; matrices are taken column by column).
+
+        Returns the residual as an SX column. Raises :class:`ModelError` naming the equation
+        when it uses a symbol the model did not declare or contains a NaN or infinite constant.
+        """
+        if name is None:
+            name = f"eq{len(self.equations) + 1}"
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise ModelError(f"model {self.name!r}: {name!r} is not a valid equation name")
+        if any(e.name == name for e in self.equations):
+            raise ModelError(f"model {self.name!r}: the equation name {name!r} is used twice")
+        if isinstance(expr, ca.MX):
+            raise ModelError(
+                f"model {self.name!r}, equation {name!r}: MX expressions are not supported; "
+                "build equations from the SX symbols the model returns"
+            )
+        try:
+            sx = ca.SX(expr) if not isinstance(expr, ca.SX) else expr
+        except Exception as exc:  # noqa: BLE001 - turned into a daekit error
+            raise ModelError(
+                f"model {self.name!r}, equation {name!r}: cannot convert {type(expr).__name__} "
+                f"to a CasADi expression ({exc})"
+            ) from None
+        sx = ca.vec(ca.densify(sx))
+        if sx.numel() == 0:
+            raise ModelError(f"model {self.name!r}, equation {name!r} is empty")
+        tname = self.t.element_hash()
+        for s in ca.symvar(sx):
+            h = s.element_hash()
+            if h != tname and h not in self._lookup:
+                raise ModelError(
+                    f"model {self.name!r}, equation {name!r} uses the symbol {s.name()!r}, which "
+                    "this model did not declare; create it with m.state/m.algebraic/m.variable/"
+                    "m.control/m.parameter (symbols made with ca.SX.sym directly are not model "
+                    "variables)"
+                )
+        bad = _nonfinite_constants(sx)
+        if bad:
+            raise ModelError(
+                f"model {self.name!r}, equation {name!r} contains the constant {bad[0]!r}; "
+                "check the data it was built from"
+            )
+        self.equations.append(Equation(name, sx))
+        self._cache.clear()
+        return sx
+
+    # ------------------------------------------------------------------ flattened views
+    @property
+    def unknown_variables(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind in UNKNOWN_KINDS]
+
+    @property
+    def controls(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind == "control"]
+
+    @property
+    def parameters(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.kind == "parameter"]
+
+    @property
+    def unknowns(self) -> list[tuple[Variable, int]]:
+        """Scalar unknowns (variable, element index) in declaration order."""
+        return [(v, i) for v in self.unknown_variables for i in range(v.size)]
+
+    @property
+    def unknown_names(self) -> list[str]:
+        return [v.element(i) for v, i in self.unknowns]
+
+    @property
+    def n_unknowns(self) -> int:
+        return sum(v.size for v in self.unknown_variables)
+
+    @property
+    def n_equations(self) -> int:
+        return sum(e.size for e in self.equations)
+
+    @property
+    def equation_names(self) -> list[str]:
+        return [e.element(i) for e in self.equations for i in range(e.size)]
+
+    @property
+    def residual(self) -> ca.SX:
+        """All equation elements stacked into one SX column."""
+        if "F" not in self._cache:
+            self._cache["F"] = ca.vertcat(*[e.expr for e in self.equations])
+        return self._cache["F"]
+
+    def symbol(self, j: int, order: int = 0) -> ca.SX:
+        """SX symbol of derivative ``order`` of scalar unknown ``j``."""
+        var, i = self.unknowns[j]
+        return var.der(order)[i]
+
+    def lookup(self, sym: ca.SX) -> tuple[Variable, int, int] | None:
+        """(variable, element, order) of a scalar symbol of this model, or None."""
+        return self._lookup.get(sym.element_hash())
+
+    @property
+    def parameter_symbols(self) -> ca.SX:
+        return ca.vertcat(*[v.sym for v in self.parameters]) if self.parameters else ca.SX(0, 1)
+
+    @property
+    def parameter_values(self) -> np.ndarray:
+        if not self.parameters:
+            return np.zeros(0)
+        return np.concatenate([v.default for v in self.parameters])
+
+    def max_order(self, var: Variable) -> int:
+        return max(var.ders) if var.ders else 0
+
+    def resolve(self, name: str) -> list[tuple[Variable, int, int]]:
+        """Elements meant by a name such as ``"p"``, ``"p[0]"``, ``"der(p,2)[1]"``.
+
+        Returns a list of (variable, element index, derivative order).
+        """
+        base, order, idx = parse_name(name)
+        var = self.variables.get(base)
+        if var is None:
+            known = ", ".join(self.variables) or "none"
+            raise ModelError(f"model {self.name!r} has no variable {base!r} (known: {known})")
+        if idx is not None and idx >= var.size:
+            raise ModelError(
+                f"model {self.name!r}: {name!r} is out of range; {base!r} has {var.size} element(s)"
+            )
+        if order > 0 and var.kind == "parameter":
+            raise ModelError(f"model {self.name!r}: {name!r} is the derivative of a parameter")
+        idxs = [idx] if idx is not None else list(range(var.size))
+        return [(var, i, order) for i in idxs]
+
+    # ------------------------------------------------------------------ structure
+    def incidence(self) -> Incidence:
+        """The sparse Sigma matrix, read from CasADi Jacobian sparsity patterns order by order."""
+        if "inc" in self._cache:
+            return self._cache["inc"]
+        F = self.residual
+        unknowns = self.unknowns
+        col_of: dict[int, int] = {}
+        for j, (var, i) in enumerate(unknowns):
+            col_of[id(var), i] = j
+        rows_all, cols_all, vals_all = [], [], []
+        max_ord = max((self.max_order(v) for v in self.unknown_variables), default=0)
+        for order in range(max_ord + 1):
+            cols_k = [j for j, (var, i) in enumerate(unknowns) if order == 0 or order in var.ders]
+            if not cols_k:
+                continue
+            X = ca.vertcat(*[unknowns[j][0].der(order)[unknowns[j][1]] for j in cols_k])
+            r, c = ca.jacobian_sparsity(F, X).get_triplet()
+            rows_all.append(np.asarray(r, dtype=np.int64))
+            cols_all.append(np.asarray(cols_k, dtype=np.int64)[np.asarray(c, dtype=np.int64)])
+            vals_all.append(np.full(len(r), order, dtype=np.int64))
+        n, m = self.n_equations, len(unknowns)
+        if rows_all:
+            rows = np.concatenate(rows_all)
+            cols = np.concatenate(cols_all)
+            vals = np.concatenate(vals_all)
+            # keep the highest order for each (row, col)
+            key = rows * m + cols
+            order_idx = np.lexsort((-vals, key))
+            key, rows, cols, vals = key[order_idx], rows[order_idx], cols[order_idx], vals[order_idx]
+            first = np.ones(len(key), dtype=bool)
+            first[1:] = key[1:] != key[:-1]
+            rows, cols, vals = rows[first], cols[first], vals[first]
+        else:
+            rows = cols = vals = np.zeros(0, dtype=np.int64)
+        inc = Incidence(n, m, rows, cols, vals)
+        self._cache["inc"] = inc
+        return inc
+
+    def validate(self) -> None:
+        """Check the model; raise :class:`ModelError` or :class:`StructuralError` naming the fault.
+
+        Checks: at least one equation; every ``state`` has its derivative used; the system is
+        square; it is structurally nonsingular (a perfect matching between equations and
+        unknowns exists), else the Dulmage--Mendelsohn decomposition names the over- and
+        under-determined parts.
+        """
+        from .structure import dulmage_mendelsohn
+
+        if not self.equations:
+            raise ModelError(f"model {self.name!r} has no equations; add them with m.equation(...)")
+        if not self.unknown_variables:
+            raise ModelError(f"model {self.name!r} has no unknowns (states or algebraic variables)")
+        inc = self.incidence()
+        highest = np.full(inc.n_unknowns, -1, dtype=np.int64)
+        np.maximum.at(highest, inc.cols, inc.vals)
+        names = self.unknown_names
+        for j, (var, i) in enumerate(self.unknowns):
+            if var.kind == "state" and highest[j] < 1:
+                raise ModelError(
+                    f"model {self.name!r}: state {names[j]!r} is declared with m.state but its "
+                    "derivative never appears in an equation; declare it with m.algebraic(...) "
+                    "(or m.variable(...)) or use m.der on it"
+                )
+        eq_names = self.equation_names
+        dm = dulmage_mendelsohn(inc.n_equations, inc.n_unknowns, inc.rows, inc.cols)
+        if dm.is_square_nonsingular:
+            return
+        over_e = [eq_names[i] for i in dm.over_rows]
+        over_v = [names[j] for j in dm.over_cols]
+        under_e = [eq_names[i] for i in dm.under_rows]
+        under_v = [names[j] for j in dm.under_cols]
+        lines = [
+            f"model {self.name!r} is structurally singular: {inc.n_equations} equations, "
+            f"{inc.n_unknowns} unknowns, at most {dm.matching_size} can be matched."
+        ]
+        if over_e:
+            lines.append(
+                f"  Over-determined: the equations {_short(over_e)} involve only the unknowns "
+                f"{_short(over_v)}, too few for them; remove or merge an equation there, or an "
+                "unknown is missing."
+            )
+        if under_v:
+            lines.append(
+                f"  Under-determined: the unknowns {_short(under_v)} appear only in the equations "
+                f"{_short(under_e)}, too few to determine them; add an equation, or declare one "
+                "of them as a control or parameter."
+            )
+        raise StructuralError(
+            "\n".join(lines),
+            overdetermined_equations=over_e,
+            overdetermined_variables=over_v,
+            underdetermined_equations=under_e,
+            underdetermined_variables=under_v,
+        )
+
+    def __repr__(self) -> str:
+        kinds = {k: [v.name for v in self.variables.values() if v.kind == k] for k in KINDS}
+        parts = ", ".join(f"{k}s={v}" for k, v in kinds.items() if v)
+        return f"Model({self.name!r}: {self.n_equations} equations; {parts})"
+
+
+def _short(names: list[str], limit: int = 12) -> str:
+    if len(names) <= limit:
+        return ", ".join(repr(n) for n in names)
+    return ", ".join(repr(n) for n in names[:limit]) + f", ... ({len(names)} in all)"
+
+
+def _nonfinite_constants(expr: ca.SX) -> list[float]:
+    """Non-finite constants inside an SX expression (walking CasADi's instruction list)."""
+    f = ca.Function("f", ca.symvar(expr), [expr]) if expr.numel() else None
+    if f is None:
+        return []
+    if not ca.symvar(expr):
+        vals = np.asarray(ca.DM(ca.evalf(expr))).ravel()
+        return [float(v) for v in vals if not math.isfinite(v)]
+    out = []
+    for k in range(f.n_instructions()):
+        if f.instruction_id(k) == ca.OP_CONST:
+            v = f.instruction_constant(k)
+            if not math.isfinite(v):
+                out.append(v)
+    return out

@@ -1,0 +1,108 @@
+"""ReducedDAE: an index-1 semi-explicit DAE with its consistency conditions.
+
+``x' = ode(t, x, z, u, p)``, ``0 = alg(t, x, z, u, p)`` with ``d alg / d z`` nonsingular, plus the
+invariants (consistency conditions) ``0 = invariants(t, x, z, u, p)`` that must hold at the
+initial time, and a map from the original model's names to expressions in these symbols.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["ReducedDAE"]
+
+
+@dataclass
+class ReducedDAE:
+    """An index-1 DAE in semi-explicit form together with its invariants.
+
+    Attributes
+    ----------
+    t, x, z, u, p : casadi.SX
+        Time, differential states, algebraic unknowns, inputs (the model's controls followed by
+        the input derivatives the reduction needs), parameters.
+    ode, alg : casadi.SX
+        Right-hand side of ``x' = ode`` and residual ``0 = alg``.
+    invariants : casadi.SX
+        Consistency conditions; they hold along exact solutions and must hold initially.
+    invariant_names : list of str
+        One name per invariant element, e.g. ``["rod", "d/dt rod"]``.
+    x_names, z_names, u_names, p_names : list of str
+        Element names of ``x``, ``z``, ``u``, ``p`` in the original model's naming
+        (``"p[0]"``, ``"der(p)[0]"``, ``"der(u,2)"``).
+    p_values : numpy.ndarray
+        Default parameter values.
+    variables : dict of str to casadi.SX
+        Every element of the original model (unknowns and their derivatives up to the order used)
+        as an expression of ``t, x, z, u, p``: how to read original names off a solution.
+    input_derivatives : list of str
+        Names of input derivatives the reduction needs (also the tail of ``u_names``).
+    control_names : list of str
+        The original model's control variables (vector names, e.g. ``["u"]``).
+    state_selection : dict or None
+        For dummy derivatives: which derivatives stayed states and which became dummies.
+    method : str
+        How it was made: ``"differentiate"``, ``"dummy_derivatives"``, ``"lagrangian"``, ...
+    model : daekit.Model or None
+        The original model.
+    """
+
+    t: ca.SX
+    x: ca.SX
+    z: ca.SX
+    u: ca.SX
+    p: ca.SX
+    ode: ca.SX
+    alg: ca.SX
+    invariants: ca.SX
+    invariant_names: list[str]
+    x_names: list[str]
+    z_names: list[str]
+    u_names: list[str]
+    p_names: list[str]
+    p_values: np.ndarray
+    variables: dict[str, ca.SX] = field(default_factory=dict)
+    input_derivatives: list[str] = field(default_factory=list)
+    control_names: list[str] = field(default_factory=list)
+    state_selection: dict | None = None
+    method: str = "differentiate"
+    model: object = None
+    stabilization: str | None = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def nx(self) -> int:
+        return int(self.x.numel())
+
+    @property
+    def nz(self) -> int:
+        return int(self.z.numel())
+
+    @property
+    def nu(self) -> int:
+        return int(self.u.numel())
+
+    @property
+    def n_p(self) -> int:
+        return int(self.p.numel())
+
+    def dae_dict(self) -> dict:
+        """The ``{'t','x','z','p','ode','alg'}`` dict of ``casadi.integrator`` (inputs u go
+        into ``p`` after the parameters)."""
+        return {
+            "t": self.t,
+            "x": self.x,
+            "z": self.z,
+            "p": ca.vertcat(self.p, self.u),
+            "ode": self.ode,
+            "alg": self.alg,
+        }
+
+    def __repr__(self) -> str:
+        return (
+            f"ReducedDAE({self.method}: {self.nx} states, {self.nz} algebraic, {self.nu} inputs, "
+            f"{len(self.invariant_names)} invariants)"
+        )

@@ -1,0 +1,13 @@
+"""Index reduction: any-index model -> index-1 DAE with its consistency conditions.
+
+- :func:`reduce_index` -- Pryce's differentiation scheme, or dummy derivatives.
+- :func:`dummy_derivatives`, :func:`reselect`, :func:`selection_condition` -- state selection.
+- :func:`baumgarte`, :func:`ggl` -- stabilizations of a :class:`~daekit.ReducedDAE`.
+- :func:`time_derivative` -- total time derivative of a model expression.
+- :func:`format_reduced` -- a readable account of a reduced DAE.
+"""
+
+from .differentiate import time_derivative
+from .reduce import check_index1, reduce_index
+
+__all__ = ["check_index1", "reduce_index", "time_derivative"]

@@ -127,7 +127,9 @@ class ConstrainedMechanics:
             raise ModelError("ConstrainedMechanics: the potential V must be a scalar expression")
         self.c = ca.vec(_as_sx(self.c, "c"))
         m = self.c.numel()
-        self.force = ca.SX.zeros(n, 1) if self.force is None else ca.vec(_as_sx(self.force, "force"))
+        if self.force is None:
+            self.force = ca.SX.zeros(n, 1)
+        self.force = ca.vec(_as_sx(self.force, "force"))
         if self.force.numel() != n:
             raise ModelError(
                 f"ConstrainedMechanics: force has {self.force.numel()} elements, expected {n}"
@@ -523,6 +525,17 @@ def _make_consistent(
             + "; compute consistent values with daekit.initialize (or fix the coordinates "
             "and velocities so that the constraints and their time derivatives vanish)"
         )
+    sv = np.linalg.svd(G0, compute_uv=False)
+    if sv.size < sysm.m or sv[-1] <= 1e-10 * max(1.0, sv[0]):
+        rows = np.linalg.norm(G0, axis=1)
+        weak = [names[i] for i in range(sysm.m) if rows[i] <= 1e-10 * max(1.0, sv[0])]
+        raise InitializationError(
+            "RATTLE: the constraint Jacobian G = dc/dq does not have full rank at the initial "
+            f"point (smallest singular value {sv[-1]:.3g}"
+            + (f"; zero rows: {', '.join(weak)}" if weak else "")
+            + "): remove redundant constraints or write them so that their gradients are "
+            "independent (e.g. not squared)"
+        )
     q = q0.copy()
     for _ in range(5):  # Gauss-Newton, minimum norm
         c = np.array(helpers["c"](q)).ravel()
@@ -670,7 +683,8 @@ def simulate_rattle(
                                 wall0, dt)
             raise SimulationError(
                 f"RATTLE: the Newton iteration for the constraint multipliers did not reach "
-                f"|c|, |c'| <= {tol:g} in the step ending before t = {tt[first]:.6g} (max |c| = "
+                f"|c|, |c'| <= {tol:g} between t = {tt[first - 1]:.6g} and {tt[first]:.6g} "
+                f"(max |c| = "
                 f"{block[first - i - 1, -2]:.3g}, max |c'| = {block[first - i - 1, -1]:.3g}): "
                 "take a smaller dt or more newton_iter, or check that the constraint Jacobian "
                 "keeps full rank",

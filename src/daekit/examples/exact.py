@@ -25,6 +25,9 @@ __all__ = [
     "brenan",
     "jay",
     "arevalo",
+    "planar_chain_rotating",
+    "planar_chain_hanging",
+    "chained_pendula_rest",
     "CHEMAKZO_Y0",
     "CHEMAKZO_TEND",
     "CHEMAKZO_YEND",
@@ -153,6 +156,50 @@ def arevalo(t) -> dict[str, np.ndarray]:
         "der(v)": -2 * s - 4 * t * t * c,
         "l": -4 * t * t,
     }
+
+
+def planar_chain_rotating(t, N: int, omega: float = 1.0) -> dict[str, np.ndarray]:
+    """:func:`daekit.examples.planar_chain` with ``g = 0`` turning rigidly and uniformly.
+
+    Mass ``k`` at ``q_k = k (cos w t, sin w t)``; the rods carry the centripetal forces,
+    ``lam_k = w^2 (k + (k+1) + ... + N)``. Values are for one scalar ``t``: ``q``, ``v``,
+    ``der(q)``, ``der(v)`` (2N each), ``lam`` (N).
+    """
+    t = float(t)
+    k = np.arange(1, N + 1, dtype=float)
+    er = np.array([np.cos(omega * t), np.sin(omega * t)])
+    et = np.array([-np.sin(omega * t), np.cos(omega * t)])
+    q = np.outer(k, er).ravel()
+    v = omega * np.outer(k, et).ravel()
+    a = -(omega**2) * np.outer(k, er).ravel()
+    lam = omega**2 * np.cumsum(k[::-1])[::-1]
+    return {"q": q, "v": v, "der(q)": v.copy(), "der(v)": a, "lam": lam}
+
+
+def planar_chain_hanging(N: int, g: float = 9.81) -> dict[str, np.ndarray]:
+    """:func:`daekit.examples.planar_chain` hanging at rest: ``q_k = (0, -k)``, and rod ``k``
+    carries the weight of the masses ``k..N``: ``lam_k = g (N - k + 1)``."""
+    k = np.arange(1, N + 1, dtype=float)
+    q = np.column_stack([np.zeros(N), -k]).ravel()
+    zero = np.zeros(2 * N)
+    return {"q": q, "v": zero, "der(q)": zero.copy(), "der(v)": zero.copy(), "lam": g * k[::-1]}
+
+
+def chained_pendula_rest(
+    p: int, G: float = 9.8, L: float = 1.0, c: float = 0.1
+) -> dict[str, np.ndarray]:
+    """:func:`daekit.examples.chained_pendula` at rest (gravity along ``+y``): ``x_i = 0``,
+    ``y_i = L + c l_{i-1}``, ``l_i = G / y_i``; all derivatives zero."""
+    out: dict[str, np.ndarray] = {}
+    prev = 0.0
+    for i in range(1, p + 1):
+        y = L + c * prev
+        lam = G / y
+        out.update(
+            {f"x{i}": 0.0, f"y{i}": y, f"l{i}": lam, f"der(x{i},2)": 0.0, f"der(y{i},2)": 0.0}
+        )
+        prev = lam
+    return {k: np.asarray(v, dtype=float) for k, v in out.items()}
 
 
 # Test Set for IVP Solvers (Mazzia, Magherini, Iavernaro; University of Bari): chemakzo.

@@ -43,7 +43,7 @@ f1 = gear_petzold
 
 
 def oki_linear() -> Model:
-    """F2: ``-x'' - y = sin t`` (``eq1``), ``x'' + x + y = t`` (``eq2``).
+    """F2: ``-x'' - y = sin t`` (``forced``), ``x'' + x + y = t`` (``spring``).
 
     State ``x`` (second order), algebraic ``y``.
 
@@ -56,14 +56,14 @@ def oki_linear() -> Model:
     ``x = t + sin t``, ``y = 0``.
 
     >>> oki_linear().equation_names
-    ['eq1', 'eq2']
+    ['forced', 'spring']
     """
     m = Model("f2_oki")
     x = m.state("x")
     y = m.algebraic("y")
     t = m.t
-    m.equation(-m.der(x, 2) - y - ca.sin(t), name="eq1")
-    m.equation(m.der(x, 2) + x + y - t, name="eq2")
+    m.equation(-m.der(x, 2) - y - ca.sin(t), name="forced")
+    m.equation(m.der(x, 2) + x + y - t, name="spring")
     return m
 
 
@@ -73,11 +73,12 @@ f2 = oki_linear
 def iwata_nonlinear() -> Model:
     """F3: ``x1' + x2^2 = sin t``, ``x1' + x1 + x3 = cos t``, ``x1' + x3 = t``.
 
-    State ``x1``, algebraic ``x2``, ``x3``; equations ``eq1``, ``eq2``, ``eq3``.
+    State ``x1``, algebraic ``x2``, ``x3``; equations ``quadratic``, ``linear1``, ``linear2``.
     Source: Iwata, Oki, Takamatsu, J. ACM 66(5), 2019. Structural analysis claims index 1,
-    DOF 1 (``structurally_ok`` False: the rows of ``eq2`` and ``eq3`` in the system Jacobian are
-    equal). Truth: differential index 2, DOF 0: ``eq2 - eq3`` gives ``x1 = cos t - t``; then
-    ``x3 = t + 1 + sin t`` and ``x2^2 = 1 + 2 sin t``; ``x3'`` needs a second differentiation.
+    DOF 1 (``structurally_ok`` False: the rows of ``linear1`` and ``linear2`` in the system
+    Jacobian are equal). Truth: differential index 2, DOF 0: ``linear1 - linear2`` gives
+    ``x1 = cos t - t``; then ``x3 = t + 1 + sin t`` and ``x2^2 = 1 + 2 sin t``; ``x3'`` needs a
+    second differentiation.
     Exact solution ``x1 = cos t - t``, ``x3 = t + 1 + sin t``, ``x2 = +-sqrt(1 + 2 sin t)``
     (real for ``sin t > -1/2``).
 
@@ -89,9 +90,9 @@ def iwata_nonlinear() -> Model:
     x2 = m.algebraic("x2")
     x3 = m.algebraic("x3")
     t = m.t
-    m.equation(m.der(x1) + x2**2 - ca.sin(t), name="eq1")
-    m.equation(m.der(x1) + x1 + x3 - ca.cos(t), name="eq2")
-    m.equation(m.der(x1) + x3 - t, name="eq3")
+    m.equation(m.der(x1) + x2**2 - ca.sin(t), name="quadratic")
+    m.equation(m.der(x1) + x1 + x3 - ca.cos(t), name="linear1")
+    m.equation(m.der(x1) + x3 - t, name="linear2")
     return m
 
 

@@ -8,6 +8,15 @@
 """
 
 from .differentiate import time_derivative
+from .dummy import dummy_derivatives, map_values, reselect, selection_condition
 from .reduce import check_index1, reduce_index
 
-__all__ = ["check_index1", "reduce_index", "time_derivative"]
+__all__ = [
+    "check_index1",
+    "dummy_derivatives",
+    "map_values",
+    "reduce_index",
+    "reselect",
+    "selection_condition",
+    "time_derivative",
+]

@@ -18,7 +18,7 @@ Example
 >>> m = dk.Model("demo")
 >>> x = m.state("x"); u = m.control("u")
 >>> str(time_derivative(x * u + m.t, m))
-'(((der(x)*u)+(x*der(u)))+1)'
+'(((u*der(x))+(x*der(u)))+1)'
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def time_derivative(expr, model: Model, k: int = 1) -> ca.SX:
     >>> import daekit as dk
     >>> m = dk.Model("d"); x = m.state("x")
     >>> str(time_derivative(x**2, m, 2))
-    '(((der(x,2)*x)+(der(x)*der(x)))+((der(x)*der(x))+(x*der(x,2))))'
+    '((der(x)*(2.*der(x)))+((2.*x)*der(x,2)))'
     """
     e = ca.SX(expr)
     for _ in range(int(k)):

@@ -10,8 +10,13 @@
 from .differentiate import time_derivative
 from .dummy import dummy_derivatives, map_values, reselect, selection_condition
 from .reduce import check_index1, reduce_index
+from .stabilize import BaumgarteStiffnessWarning, baumgarte, ggl, time_scale
 
 __all__ = [
+    "BaumgarteStiffnessWarning",
+    "baumgarte",
+    "ggl",
+    "time_scale",
     "check_index1",
     "dummy_derivatives",
     "map_values",

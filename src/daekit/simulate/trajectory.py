@@ -1,0 +1,226 @@
+"""Trajectory: a simulated (or optimized) solution, read by the original model's names.
+
+A :class:`Trajectory` holds the time grid, one array per scalar element name (``"p[0]"``,
+``"der(p)[1]"``, ``"z"``), the invariants (consistency conditions) along the solution, and
+solver statistics. Vector names are gathered on access: ``traj["p"]`` is an ``(N, 3)`` array.
+
+Example
+-------
+>>> import numpy as np
+>>> from daekit.simulate import Trajectory
+>>> t = np.linspace(0, 1, 3)
+>>> tr = Trajectory(t, {"p[0]": t, "p[1]": 2 * t, "z": -t})
+>>> tr["p"].shape, tr["p[1]"][-1], tr["z"][0]
+((3, 2), 2.0, -0.0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+from ..errors import ModelError
+from ..model import element_name, parse_name
+
+__all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
+
+
+class NameNotFoundError(ModelError, KeyError):
+    """A name asked of a trajectory or of initial values is not among the known ones."""
+
+    def __str__(self) -> str:  # KeyError would otherwise quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+def expand_name(name: str, keys: Mapping | Iterable[str], what: str = "the solution") -> list[str]:
+    """The scalar element names meant by ``name`` among ``keys``.
+
+    ``"p"`` -> ``["p[0]", "p[1]", "p[2]"]``, ``"p[1]"`` -> ``["p[1]"]``, ``"der(p,1)"`` ->
+    the elements of ``"der(p)"``, and a scalar ``"z"`` -> ``["z"]``.
+
+    >>> expand_name("p", ["p[0]", "p[1]", "z"])
+    ['p[0]', 'p[1]']
+    """
+    if name in keys:
+        return [name]
+    try:
+        base, order, idx = parse_name(name)
+    except ModelError:
+        raise NameNotFoundError(
+            f"cannot read the name {name!r}: use 'p', 'p[0]', 'der(p)', 'der(p)[0]' or 'der(p,2)'"
+        ) from None
+    prefix = element_name(base, 1, 0, order)
+    if idx is not None:
+        cand = f"{prefix}[{idx}]"
+        if cand in keys:
+            return [cand]
+        if idx == 0 and prefix in keys:
+            return [prefix]
+    else:
+        if prefix in keys:
+            return [prefix]
+        out = []
+        while f"{prefix}[{len(out)}]" in keys:
+            out.append(f"{prefix}[{len(out)}]")
+        if out:
+            return out
+    known = sorted({_vector_name(k) for k in keys})
+    shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
+    raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
+
+
+def _vector_name(element: str) -> str:
+    return element.rsplit("[", 1)[0] if element.endswith("]") else element
+
+
+class Trajectory:
+    """Values of a solution on a time grid, by the original model's names.
+
+    Parameters
+    ----------
+    t : array (N,)
+        Time points.
+    values : dict of str to array (N,)
+        One array per scalar element name (``"p[0]"``, ``"der(p)[0]"``, ``"z"``, ``"u[1]"``).
+    invariants : array (N, n_inv), optional
+        Consistency conditions evaluated along the solution (zero on exact solutions).
+    invariant_names : list of str, optional
+        One name per invariant column, e.g. ``["rod", "d/dt rod"]``.
+    stats : dict, optional
+        Solver statistics (``steps``, ``residual_evaluations``, ``wall_time``, ...).
+
+    Attributes
+    ----------
+    t, invariants, invariant_names, stats : as given.
+    names : list of str
+        Vector names available (``"p"``, ``"der(p)"``, ``"z"``, ...).
+
+    ``traj["p"]`` returns ``(N, size)`` for a vector, ``(N,)`` for a scalar or an element.
+    """
+
+    def __init__(
+        self,
+        t,
+        values: Mapping[str, np.ndarray],
+        invariants=None,
+        invariant_names: Iterable[str] | None = None,
+        stats: dict | None = None,
+    ) -> None:
+        self.t = np.asarray(t, dtype=float).ravel()
+        n = self.t.size
+        self.values: dict[str, np.ndarray] = {}
+        for k, v in values.items():
+            arr = np.asarray(v, dtype=float).ravel()
+            if arr.size != n:
+                raise ModelError(
+                    f"Trajectory: {k!r} has {arr.size} values but there are {n} time points"
+                )
+            self.values[k] = arr
+        self.invariant_names = list(invariant_names or [])
+        if invariants is None:
+            invariants = np.zeros((n, len(self.invariant_names)))
+        inv = np.asarray(invariants, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))
+        self.invariants = inv
+        self.stats = dict(stats or {})
+
+    # ------------------------------------------------------------------ access
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name == "t":
+            return self.t
+        elems = expand_name(name, self.values, "this trajectory")
+        if len(elems) == 1 and (elems[0] == name or "[" in name or not elems[0].endswith("]")):
+            return self.values[elems[0]]
+        return np.column_stack([self.values[e] for e in elems])
+
+    def __contains__(self, name: str) -> bool:
+        try:
+            expand_name(name, self.values)
+        except NameNotFoundError:
+            return False
+        return True
+
+    def __len__(self) -> int:
+        return self.t.size
+
+    @property
+    def names(self) -> list[str]:
+        out: list[str] = []
+        for k in self.values:
+            v = _vector_name(k)
+            if v not in out:
+                out.append(v)
+        return out
+
+    def invariant(self, name: str) -> np.ndarray:
+        """The column of invariant ``name`` (e.g. ``"rod"`` or ``"d/dt rod"``)."""
+        if name not in self.invariant_names:
+            raise NameNotFoundError(
+                f"no invariant named {name!r}; known: {', '.join(self.invariant_names) or 'none'}"
+            )
+        return self.invariants[:, self.invariant_names.index(name)]
+
+    def max_invariant(self) -> dict[str, float]:
+        """``{invariant name: max |value| over the trajectory}``."""
+        if not self.invariant_names or self.t.size == 0:
+            return {}
+        m = np.max(np.abs(self.invariants), axis=0)
+        return {n: float(v) for n, v in zip(self.invariant_names, m)}
+
+    def at(self, time: float) -> dict[str, float]:
+        """Values at the grid point nearest ``time`` (by element name)."""
+        k = int(np.argmin(np.abs(self.t - time)))
+        return {n: float(v[k]) for n, v in self.values.items()}
+
+    def slice(self, stop: int) -> Trajectory:
+        """The first ``stop`` time points."""
+        return Trajectory(
+            self.t[:stop],
+            {k: v[:stop] for k, v in self.values.items()},
+            self.invariants[:stop],
+            self.invariant_names,
+            self.stats,
+        )
+
+    # ------------------------------------------------------------------ export and figures
+    def to_pandas(self):
+        """A ``pandas.DataFrame`` indexed by time, one column per element and invariant.
+
+        Raises :class:`ImportError` with advice when pandas is not installed.
+        """
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError(
+                "Trajectory.to_pandas needs pandas: pip install pandas "
+                "(or use traj.t, traj['name'] and traj.invariants directly)"
+            ) from None
+        cols = dict(self.values)
+        for j, n in enumerate(self.invariant_names):
+            cols[f"invariant:{n}"] = self.invariants[:, j]
+        return pd.DataFrame(cols, index=pd.Index(self.t, name="t"))
+
+    def plot(self, names: Iterable[str] | str | None = None, ax=None):
+        """Plot the named variables over time (all states when ``names`` is None).
+
+        Returns the matplotlib Figure; see :func:`daekit.plot.plot_trajectory`.
+        """
+        from ..plot import plot_trajectory
+
+        return plot_trajectory(self, names=names, ax=ax)
+
+    def plot_invariants(self, axes=None):
+        """The lecture's drift figure: ``|c|`` and ``|c'|`` over time on log scales.
+
+        Returns the matplotlib Figure; see :func:`daekit.plot.plot_invariants`.
+        """
+        from ..plot import plot_invariants
+
+        return plot_invariants(self, axes=axes)
+
+    def __repr__(self) -> str:
+        span = f"t in [{self.t[0]:g}, {self.t[-1]:g}]" if self.t.size else "empty"
+        return (
+            f"Trajectory({self.t.size} points, {span}; {', '.join(self.names[:8])}"
+            f"{', ...' if len(self.names) > 8 else ''}; {len(self.invariant_names)} invariants)"
+        )

@@ -10,6 +10,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+import daekit as dk
 from daekit.errors import ModelError
 from daekit.examples.mechanisms import (
     lagrangian_delta_robot,
@@ -91,6 +92,8 @@ def test_pendulum3d_model_is_index3_and_names_work():
     assert m.unknown_names == ["p[0]", "p[1]", "p[2]", "z"]
     assert [e.name for e in m.equations] == ["motion", "rod"]
     assert _sigma_index(m) == 3
+    a = dk.analyze(m)
+    assert (a.index, a.dof) == (3, 4)  # 3 coordinates - 1 constraint, each with its velocity
     r = sys3.index1()
     for name in ("p[0]", "der(p)[2]", "der(p,2)[1]", "z"):
         assert name in r.variables
@@ -142,6 +145,14 @@ def test_planar_chain_structure_and_large_n():
     assert r.z_names[-3:] == ["lam[0]", "lam[1]", "lam[2]"]
     assert r.invariant_names == ["rod[0]", "rod[1]", "rod[2]",
                                  "d/dt rod[0]", "d/dt rod[1]", "d/dt rod[2]"]
+    # a chain hanging at rest: rod k carries the weight of the masses below it, z_k = tension/L
+    h = lagrangian_planar_chain(3, mass=2.0, length=0.5, g=9.81)
+    q = np.array([0.0, -0.5, 0.0, -1.0, 0.0, -1.5])
+    a, lam = h.acceleration(0.0, q, np.zeros(6), [], h.p_values)
+    np.testing.assert_allclose(np.asarray(a).ravel(), 0.0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(lam).ravel(), np.array([3, 2, 1]) * 2.0 * 9.81 / 0.5,
+                               rtol=1e-12)
+    assert dk.analyze(ch.model()).dof == 6
     big = lagrangian_planar_chain(400)
     rb = big.index1()
     assert (rb.nx, rb.nz) == (1600, 1200)
@@ -173,6 +184,7 @@ def test_delta_robot_index3_home_consistent_and_nonsingular():
     robot = lagrangian_delta_robot()
     m = robot.model()
     assert _sigma_index(m) == 3
+    assert (dk.analyze(m).index, dk.analyze(m).dof) == (3, 6)
     r = robot.index1()
     h = lagrangian_delta_robot_home()
     x = np.r_[h["alpha"], h["p"], h["der(alpha)"], h["der(p)"]]

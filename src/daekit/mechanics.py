@@ -525,17 +525,18 @@ class LagrangianSystem:
         self.constraint_jacobian = F("constraint_jacobian", [q, p], [G], qp, ["G"])
         self.constraint_velocity = F("constraint_velocity", [q, dq, p], [cdot], qdp, ["cdot"])
         self.constraint_curvature = F("constraint_curvature", [q, dq, p], [curv], qdp, ["curv"])
-        # KKT solve for the accelerations and multipliers (small and medium systems)
+        # KKT solve for the accelerations and multipliers: a sparse QR inside a CasADi Function
         K = ca.blockcat([[M, G.T], [G, ca.SX(self.m, self.m)]])
         rhs = ca.vertcat(Q - vel - gradV, -curv)
-        sol = ca.solve(K, rhs) if self.n + self.m <= 60 else None
-        if sol is not None:
-            self.acceleration = F(
-                "acceleration", [tt, q, dq, u, p], [sol[: self.n], sol[self.n :]],
-                ["t", "q", "dq", "u", "p"], ["ddq", "z"],
-            )
-        else:
-            self.acceleration = _SparseKKT(self)
+        kf = F("kkt", [q, p], [K])
+        rf = F("kkt_rhs", [tt, q, dq, u, p], [rhs])
+        mt, mq, mdq = ca.MX.sym("t"), ca.MX.sym("q", self.n), ca.MX.sym("dq", self.n)
+        mu, mp = ca.MX.sym("u", u.numel()), ca.MX.sym("p", p.numel())
+        sol = ca.solve(kf(mq, mp), rf(mt, mq, mdq, mu, mp), "qr")
+        self.acceleration = F(
+            "acceleration", [mt, mq, mdq, mu, mp], [sol[: self.n], sol[self.n :]],
+            ["t", "q", "dq", "u", "p"], ["ddq", "z"],
+        )
         self.kkt_matrix = F("kkt_matrix", [q, p], [K], qp, ["K"])
         # flags
         self.is_conservative = bool(Q.nnz() == 0 or Q.is_zero())
@@ -645,24 +646,6 @@ class LagrangianSystem:
             f"LagrangianSystem({self.name!r}: {self.n} coordinates, {self.m} constraints, "
             f"{self.n_inputs} inputs)"
         )
-
-
-class _SparseKKT:
-    """``acceleration(t, q, dq, u, p) -> (q'', z)`` by a sparse LU of the KKT matrix
-    (for large systems, where a symbolic solve would be dense)."""
-
-    def __init__(self, system: LagrangianSystem) -> None:
-        self.s = system
-
-    def __call__(self, t, q, dq, u, p):
-        s = self.s
-        K = _to_scipy(ca.DM(s.kkt_matrix(q, p)))
-        Q = np.asarray(s.generalized_force(t, q, dq, u, p)).ravel()
-        h = np.asarray(s.velocity_terms(q, dq, p)).ravel()
-        g = np.asarray(s.potential_gradient(q, p)).ravel()
-        curv = np.asarray(s.constraint_curvature(q, dq, p)).ravel()
-        sol = spla.spsolve(K.tocsc(), np.concatenate([Q - h - g, -curv]))
-        return ca.DM(sol[: s.n]), ca.DM(sol[s.n :])
 
 
 def lagrangian(coordinates, velocities, T, V=0, **kwargs) -> LagrangianSystem:

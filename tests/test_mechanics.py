@@ -277,6 +277,20 @@ def test_flags_and_functions_of_a_spherical_pendulum():
     assert r.nz == 2 and r.invariant_names == []
 
 
+def test_time_dependent_force_without_constraints():
+    """x'' + x = cos 2t, x(0) = x'(0) = 0: exact x = (cos t - cos 2t)/3."""
+    x, dx, t = ca.SX.sym("x"), ca.SX.sym("dx"), ca.SX.sym("t")
+    osc = lagrangian({"x": x}, dx, 0.5 * dx**2, 0.5 * x**2, forces=ca.cos(2 * t), t=t)
+    assert not osc.is_conservative and osc.n_constraints == 0
+    r = osc.index1()
+    assert r.x_names == ["x", "der(x)"] and r.z_names == ["der(x,2)"]
+    F = ca.integrator("F", "idas", r.dae_dict(), 0.0, [2.0], {"abstol": 1e-12, "reltol": 1e-12})
+    xf = np.asarray(F(x0=[0.0, 0.0], z0=[1.0])["xf"]).ravel()
+    np.testing.assert_allclose(xf, [(np.cos(2) - np.cos(4)) / 3, (-np.sin(2) + 2 * np.sin(4)) / 3],
+                               atol=1e-9)
+    assert _sigma_index(osc.model()) == 0
+
+
 # ----------------------------------------------------------------------------- bad input
 def _pend_syms():
     return ca.SX.sym("x", 2), ca.SX.sym("dx", 2)

@@ -133,6 +133,9 @@ class LagrangianSystem:
         Name of the model.
     equation_name : str
         Name of the Euler--Lagrange equations in the model.
+    check : bool
+        Check at two random configurations (parameters at their defaults) that the mass
+        matrix is positive definite and the constraint Jacobian has full row rank (default).
 
     Sign conventions: the constraint force on the coordinates is ``-G^T z``, so for the
     pendulum with ``c = (p.p - L^2)/2``, ``z`` is the rod tension divided by ``L``.
@@ -167,8 +170,10 @@ class LagrangianSystem:
       ``generalized_force``     ``t, q, dq, u, p``           ``Q``
       ``constraint``            ``q, p``                     ``c``
       ``constraint_jacobian``   ``q, p``                     ``G = dc/dq`` (m x n, sparse)
+      ``constraint_velocity``   ``q, dq, p``                 ``G q'`` (the hidden constraint)
       ``constraint_curvature``  ``q, dq, p``                 ``(G q')_q q'``
-      ``acceleration``          ``t, q, dq, u, p``           ``q''`` and ``z`` (KKT solve)
+      ``kkt_matrix``            ``q, p``                     ``[M G^T; G 0]`` (sparse)
+      ``acceleration``          ``t, q, dq, u, p``           ``q''`` and ``z`` (sparse QR)
       ========================  ===========================  =============================
 
       So ``M q'' + velocity_terms + potential_gradient + G^T z = generalized_force``.

@@ -1,0 +1,572 @@
+"""Optimal control on DAEs of any index: ``OCP``, ``Free``, ``OCPSolution``.
+
+The model is reduced to index 1 (or given as a :class:`~daekit.reduced.ReducedDAE`); the
+optimal control problem is transcribed (direct collocation with Radau IIA by default, or
+multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
+(invariants) are imposed at the initial time only, and boundary conditions that are redundant
+with them (full periodicity of a constrained mechanism) are detected and dropped; the
+solution's :attr:`OCPSolution.report` says what was done.
+
+Example: swing a planar pendulum (index 3 in Cartesian coordinates) from rest at the bottom
+to rest at 30 degrees with the least control effort.
+
+>>> import casadi as ca, numpy as np, daekit as dk          # doctest: +SKIP
+>>> m = dk.examples.pendulum_planar()                          # doctest: +SKIP
+>>> ...                                                        # doctest: +SKIP
+>>> ocp = dk.OCP(m, t_final=2.0, intervals=40, degree=3)       # doctest: +SKIP
+>>> ocp.minimize(integral=u**2)                                 # doctest: +SKIP
+>>> ocp.initial({"x": 0.0, "der(x)": 0.0, "der(y)": 0.0})      # doctest: +SKIP
+>>> ocp.final({"x": np.sin(np.pi / 6), "der(x)": 0.0})         # doctest: +SKIP
+>>> sol = ocp.solve(); sol.success, sol.objective              # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..errors import OCPError
+from ..reduced import ReducedDAE
+from .consistency import BoundaryAnalysis, analyze_boundary
+from .problem import Augmented, augment
+
+__all__ = ["OCP", "Free", "OCPSolution", "BoundaryAnalysis"]
+
+_STATUS_OK = {"Solve_Succeeded", "Solved_To_Acceptable_Level"}
+
+
+@dataclass
+class Free:
+    """A free decision quantity (the final time) with bounds and a guess.
+
+    >>> Free(1.0, 5.0).guess
+    3.0
+    """
+
+    lo: float
+    hi: float
+    guess: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.lo) and np.isfinite(self.hi)) or self.lo > self.hi:
+            raise OCPError(f"Free({self.lo}, {self.hi}): needs finite bounds with lo <= hi")
+        if self.lo <= 0:
+            raise OCPError(f"Free({self.lo}, {self.hi}): a free final time needs lo > 0")
+        if self.guess is None:
+            self.guess = 0.5 * (self.lo + self.hi)
+        if not self.lo <= self.guess <= self.hi:
+            raise OCPError(f"Free({self.lo}, {self.hi}, guess={self.guess}): guess out of bounds")
+
+
+def _vec(val, n: int, what: str) -> np.ndarray:
+    try:
+        arr = np.asarray(ca.DM(val) if isinstance(val, ca.DM) else val, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise OCPError(f"{what}: expected numbers, got {val!r}") from None
+    if arr.size == 1:
+        arr = np.full(n, float(arr[0]))
+    if arr.size != n:
+        raise OCPError(f"{what}: expected {n} value(s), got {arr.size}")
+    return arr
+
+
+class OCP:
+    """An optimal control problem on a DAE model of any index.
+
+    Parameters
+    ----------
+    model : daekit.Model or daekit.reduced.ReducedDAE
+        An original model (any index; reduced with :func:`daekit.reduction.reduce_index`) or an
+        index-1 ReducedDAE. Expressions and names refer to the original model's variables.
+    t_final : float or Free
+        Horizon length (the problem starts at ``t = 0``), or ``Free(lo, hi, guess)``.
+    intervals : int
+        Number of control intervals ``N``.
+    degree : int
+        Radau IIA collocation degree, 1 to 5 (collocation only).
+    method : {"collocation", "shooting"}
+        Direct collocation (default) or multiple shooting with IDAS.
+    controls : {"constant", "polynomial"}
+        Piecewise constant controls, or piecewise polynomial of degree ``degree - 1``
+        (values at the Radau points; collocation only).
+    verbose : bool
+        Let IPOPT print its iterations.
+    solver_options : dict
+        Extra IPOPT options, e.g. ``{"max_iter": 500, "tol": 1e-10}``.
+
+    Example
+    -------
+    >>> import casadi as ca, daekit as dk
+    >>> m = dk.Model("cart"); s = m.state("s"); u = m.control("u")
+    >>> _ = m.equation(m.der(s, 2) - u, name="newton")
+    >>> ocp = dk.OCP(m, t_final=1.0, intervals=20)         # doctest: +SKIP
+    >>> ocp.minimize(integral=u**2)                         # doctest: +SKIP
+    >>> ocp.initial({"s": 0, "der(s)": 0}); ocp.final({"s": 1, "der(s)": 0})  # doctest: +SKIP
+    >>> round(ocp.solve().objective, 3)                      # doctest: +SKIP
+    12.0
+    """
+
+    def __init__(
+        self,
+        model,
+        t_final: float | Free = 1.0,
+        intervals: int = 50,
+        degree: int = 3,
+        method: str = "collocation",
+        controls: str = "constant",
+        verbose: bool = False,
+        solver_options: dict | None = None,
+    ) -> None:
+        if isinstance(model, ReducedDAE):
+            r = model
+        elif hasattr(model, "equations") and hasattr(model, "variables"):
+            try:
+                from ..reduction import reduce_index
+            except ImportError as exc:  # pragma: no cover - depends on the reduction module
+                raise OCPError(
+                    "OCP needs daekit.reduction.reduce_index to reduce the model; pass a "
+                    f"ReducedDAE instead ({exc})"
+                ) from None
+            r = reduce_index(model)
+        else:
+            raise OCPError(
+                f"OCP(model): expected a daekit.Model or a ReducedDAE, got {type(model).__name__}"
+            )
+        if int(intervals) != intervals or intervals < 1:
+            raise OCPError(f"OCP: intervals must be a positive integer, got {intervals!r}")
+        if int(degree) != degree or not 1 <= degree <= 5:
+            raise OCPError(f"OCP: degree must be 1, 2, 3, 4 or 5 (Radau IIA), got {degree!r}")
+        if method not in ("collocation", "shooting"):
+            raise OCPError(f"OCP: method must be 'collocation' or 'shooting', got {method!r}")
+        if controls not in ("constant", "polynomial"):
+            raise OCPError(f"OCP: controls must be 'constant' or 'polynomial', got {controls!r}")
+        if method == "shooting" and controls != "constant":
+            raise OCPError("OCP: multiple shooting supports piecewise constant controls only")
+        self.model = model
+        self.reduced = r
+        self.intervals = int(intervals)
+        self.degree = int(degree)
+        self.method = method
+        self.control_mode = controls
+        self.verbose = bool(verbose)
+        self.solver_options = dict(solver_options or {})
+        self._aug: Augmented = augment(r)
+        if isinstance(t_final, Free):
+            self._T_free = (float(t_final.lo), float(t_final.hi), float(t_final.guess))
+            self._T_fixed = None
+            self._T_guess = float(t_final.guess)
+        else:
+            try:
+                T = float(t_final)
+            except (TypeError, ValueError):
+                raise OCPError(f"OCP: t_final must be a number or Free(...), got {t_final!r}") from None
+            if not np.isfinite(T) or T <= 0:
+                raise OCPError(f"OCP: t_final must be positive and finite, got {t_final!r}")
+            self._T_free, self._T_fixed, self._T_guess = None, T, T
+        self._lagrange_user: ca.SX | None = None
+        self._mayer_user: ca.SX | None = None
+        self._bounds: dict[str, list[float]] = {}
+        self._path_user: list[tuple[ca.SX, np.ndarray, np.ndarray, str]] = []
+        self._bc_user: list[tuple[str, str, ca.SX, float]] = []  # (kind, label, expr, value)
+        self._free_params: dict[str, tuple[float, float, float]] = {}
+        self._p_values = self._aug.p_values.copy()
+        self._last_boundary: BoundaryAnalysis | None = None
+
+    # ------------------------------------------------------------------ problem statement
+    def minimize(self, integral=None, final=None) -> OCP:
+        """Objective ``integral_0^T integral dt + final`` (expressions in the model's symbols;
+        ``final`` is evaluated at ``t = T``, so ``final=m.t`` minimizes the final time)."""
+        if integral is None and final is None:
+            raise OCPError("ocp.minimize(): give an integral (Lagrange) and/or final (Mayer) term")
+        if integral is not None:
+            e = self._aug.map_expr(integral, "the integral objective")
+            if e.numel() != 1:
+                raise OCPError(f"the integral objective must be a scalar, got {e.numel()} elements")
+            self._lagrange_user = e
+        if final is not None:
+            e = self._aug.map_expr(final, "the final objective")
+            if e.numel() != 1:
+                raise OCPError(f"the final objective must be a scalar, got {e.numel()} elements")
+            self._mayer_user = e
+        return self
+
+    def bound(self, name: str, lo=-np.inf, hi=np.inf) -> OCP:
+        """Bounds ``lo <= name <= hi`` along the whole horizon, for any variable or element by
+        name (``"z"``, ``"p[0]"``, ``"der(p)"``, controls, free parameters)."""
+        els = self._aug.elements(name, f"ocp.bound({name!r})")
+        lo_ = _vec(lo, len(els), f"ocp.bound({name!r}) lower bound")
+        hi_ = _vec(hi, len(els), f"ocp.bound({name!r}) upper bound")
+        for e, a, b in zip(els, lo_, hi_, strict=True):
+            if a > b:
+                raise OCPError(f"ocp.bound({name!r}): lower bound {a} > upper bound {b} for {e!r}")
+            w = self._aug.which(self._aug.names[e])
+            if w is not None and w[0] == "p":
+                if e not in self._free_params:
+                    raise OCPError(
+                        f"ocp.bound({name!r}): {e!r} is a fixed parameter; make it a decision "
+                        "variable with ocp.free_parameter(name, lo, hi, guess)"
+                    )
+                g = float(np.clip(self._free_params[e][2], a, b))
+                self._free_params[e] = (float(a), float(b), g)
+                continue
+            self._bounds[e] = [float(a), float(b)]
+        return self
+
+    def constrain(self, expr, lb=-np.inf, ub=np.inf, name: str | None = None) -> OCP:
+        """Path constraint ``lb <= expr <= ub`` at every collocation point (and at ``t = 0``)."""
+        label = name or f"path constraint #{len(self._path_user) + 1}"
+        e = self._aug.map_expr(expr, f"ocp.constrain ({label})")
+        lb_ = _vec(lb, e.numel(), f"ocp.constrain ({label}) lb")
+        ub_ = _vec(ub, e.numel(), f"ocp.constrain ({label}) ub")
+        if np.any(lb_ > ub_):
+            raise OCPError(f"ocp.constrain ({label}): lb > ub")
+        self._path_user.append((e, lb_, ub_, label))
+        return self
+
+    def _conditions(self, kind: str, values: dict) -> None:
+        if not isinstance(values, dict):
+            raise OCPError(f"ocp.{kind}(...) takes a dict {{name: value}}, got {type(values).__name__}")
+        for name, val in values.items():
+            els = self._aug.elements(name, f"ocp.{kind}({{{name!r}: ...}})")
+            vals = _vec(val, len(els), f"ocp.{kind}({{{name!r}: ...}})")
+            for e, v in zip(els, vals, strict=True):
+                self._bc_user.append((kind, f"{kind} {e}", self._aug.names[e], float(v)))
+
+    def initial(self, values: dict) -> OCP:
+        """Conditions at ``t = 0``: ``{name: value}``. Redundancy with the invariants is handled."""
+        self._conditions("initial", values)
+        return self
+
+    def final(self, values: dict) -> OCP:
+        """Conditions at ``t = T``: ``{name: value}``."""
+        self._conditions("final", values)
+        return self
+
+    def periodic(self, names) -> OCP:
+        """``v(T) = v(0)`` for each named variable (``["p", "der(p)"]``)."""
+        if isinstance(names, str):
+            names = [names]
+        for name in names:
+            for e in self._aug.elements(name, f"ocp.periodic([{name!r}])"):
+                self._bc_user.append(("periodic", f"periodic {e}", self._aug.names[e], 0.0))
+        return self
+
+    def free_parameter(self, name: str, lo: float, hi: float, guess: float | None = None) -> OCP:
+        """Make a model parameter a decision variable with bounds ``lo <= name <= hi``."""
+        for e in self._aug.elements(name, f"ocp.free_parameter({name!r})"):
+            w = self._aug.which(self._aug.names[e])
+            if w is None or w[0] != "p":
+                raise OCPError(f"ocp.free_parameter({name!r}): {e!r} is not a model parameter")
+            g = self._p_values[w[1]] if guess is None else guess
+            if not lo <= g <= hi:
+                g = 0.5 * (lo + hi)
+            self._free_params[e] = (float(lo), float(hi), float(g))
+        return self
+
+    def set_parameters(self, values: dict) -> OCP:
+        """Change fixed parameter values: ``{"L": 2.0}``."""
+        for name, val in values.items():
+            els = self._aug.elements(name, f"ocp.set_parameters({{{name!r}: ...}})")
+            for e, v in zip(els, _vec(val, len(els), f"parameter {name!r}"), strict=True):
+                w = self._aug.which(self._aug.names[e])
+                if w is None or w[0] != "p":
+                    raise OCPError(f"ocp.set_parameters: {e!r} is not a model parameter")
+                self._p_values[w[1]] = v
+        return self
+
+    # ------------------------------------------------------------------ preparation
+    def _prepare(self) -> None:
+        a = self._aug
+        self._has_lagrange = self._lagrange_user is not None
+        self._has_mayer = self._mayer_user is not None
+        if not (self._has_lagrange or self._has_mayer):
+            raise OCPError("no objective: call ocp.minimize(integral=..., final=...) first")
+        self._lagrange = self._lagrange_user if self._has_lagrange else ca.SX(0)
+        Tsym = ca.SX.sym("T")
+        if self._has_mayer:
+            may = ca.substitute([self._mayer_user], [a.t], [Tsym])[0]
+            self._mayer_fun = ca.Function("mayer", [Tsym, a.x, a.z, a.w, a.p], [may])
+        # bounds: simple (on one decision symbol) or general (path constraints)
+        lb = {k: np.full(n, -np.inf) for k, n in (("x", a.nx), ("z", a.nz), ("w", a.nw))}
+        ub = {k: np.full(n, np.inf) for k, n in (("x", a.nx), ("z", a.nz), ("w", a.nw))}
+        path_exprs, path_lb, path_ub, path_labels = [], [], [], []
+        for e, (lo, hi) in self._bounds.items():
+            ex = a.names[e]
+            w = a.which(ex)
+            if w is not None and w[0] in lb:
+                lb[w[0]][w[1]] = max(lb[w[0]][w[1]], lo)
+                ub[w[0]][w[1]] = min(ub[w[0]][w[1]], hi)
+            else:
+                path_exprs.append(ex)
+                path_lb.append([lo])
+                path_ub.append([hi])
+                path_labels.append(f"bound on {e}")
+        for k in lb:
+            bad = np.nonzero(lb[k] > ub[k])[0]
+            if bad.size:
+                raise OCPError(f"contradicting bounds on the same variable ({k}[{bad[0]}])")
+        self._lb, self._ub = lb, ub
+        for ex, l_, u_, lab in self._path_user:
+            path_exprs.append(ex)
+            path_lb.append(l_)
+            path_ub.append(u_)
+            path_labels.extend([lab] * ex.numel()) if ex.numel() > 1 else path_labels.append(lab)
+        if path_exprs:
+            pe = ca.vertcat(*path_exprs)
+            self._path_fun = ca.Function("path", [a.t, a.x, a.z, a.w, a.p], [pe])
+            self._path_lb = np.concatenate([np.ravel(x) for x in path_lb])
+            self._path_ub = np.concatenate([np.ravel(x) for x in path_ub])
+            self._path_labels = path_labels
+        else:
+            self._path_fun = None
+        # boundary conditions as a function of (v0, vT, p, T), v = (x, z, w)
+        n = a.nx + a.nz + a.nw
+        v0 = ca.SX.sym("v0", n)
+        vT = ca.SX.sym("vT", n)
+        v = ca.vertcat(a.x, a.z, a.w)
+        rows, labels, kinds = [], [], []
+        for kind, label, ex, val in self._bc_user:
+            e0 = ca.substitute([ex], [ca.vertcat(a.t, v)], [ca.vertcat(0.0, v0)])[0]
+            eT = ca.substitute([ex], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0]
+            if kind == "initial":
+                rows.append(e0 - val)
+            elif kind == "final":
+                rows.append(eT - val)
+            else:
+                rows.append(eT - e0)
+            labels.append(label)
+            kinds.append(kind)
+        bc = ca.vertcat(*rows) if rows else ca.SX(0, 1)
+        self._bc_fun = ca.Function("bc", [v0, vT, a.p, Tsym], [bc])
+        self._bc_jac = ca.Function(
+            "bc_jac", [v0, vT, a.p, Tsym], [ca.jacobian(bc, ca.vertcat(v0, vT))]
+        )
+        self._bc_labels = labels
+        self._bc_kinds = kinds
+        man = ca.vertcat(a.alg, a.inv)
+        self._man_jac = ca.Function("man_jac", [a.t, v, a.p], [ca.jacobian(man, v)])
+        self._man_fun = ca.Function("man", [a.t, v, a.p], [man])
+        self._kept = list(range(len(labels)))
+
+    def _simple_bounds(self):
+        return (self._lb["x"], self._ub["x"], self._lb["z"], self._ub["z"],
+                self._lb["w"], self._ub["w"])
+
+    def _add_path(self, B, t, X, Z, W, P, frac) -> None:
+        if self._path_fun is not None:
+            B.con(self._path_fun(t, X, Z, W, P), self._path_lb, self._path_ub,
+                  "path constraints", frac, "path", self._path_labels)
+
+    def _add_boundary(self, B, v0, vT, P, T) -> None:
+        if not self._kept:
+            return
+        rows = self._bc_fun(v0, vT, P, T)
+        idx = self._kept
+        sel = ca.vertcat(*[rows[i] for i in idx])
+        B.con(sel, 0.0, 0.0, "boundary conditions", None, "boundary",
+              [self._bc_labels[i] for i in idx])
+
+    def _p_guess(self) -> np.ndarray:
+        p = self._p_values.copy()
+        for i, nm in enumerate(self._aug.p_names):
+            if nm in self._free_params:
+                p[i] = self._free_params[nm][2]
+        return p
+
+    # ------------------------------------------------------------------ analysis
+    def boundary_analysis(self, guess=None) -> BoundaryAnalysis:
+        """Rank of the boundary conditions restricted to the invariant manifold, at the guess.
+
+        ``a.rank < a.n_conditions`` means that imposing all of them together with the
+        invariants is redundant (the naive NLP is rank deficient); ``a.kept`` is the subset
+        :meth:`solve` imposes.
+        """
+        from .guess import make_guess
+
+        self._prepare()
+        g = make_guess(self, guess)
+        return self._analyze(g)
+
+    def _analyze(self, g) -> BoundaryAnalysis:
+        a = self._aug
+        T = g.T
+        x0, z0, w0 = g.fun(np.array([0.0]))
+        xT, zT, wT = g.fun(np.array([T]))
+        v0 = np.concatenate([x0[:, 0], z0[:, 0], w0[:, 0]])
+        vT = np.concatenate([xT[:, 0], zT[:, 0], wT[:, 0]])
+        p = g.p
+        Jbc = np.asarray(self._bc_jac(v0, vT, p, T))
+        J0 = np.asarray(self._man_jac(0.0, v0, p))
+        JT = np.asarray(self._man_jac(T, vT, p))
+        if not self._bc_labels:
+            return BoundaryAnalysis([], 0, [], [], np.zeros(0), np.zeros((0, 0)),
+                                    (J0.shape[1] - a.nz, JT.shape[1] - a.nz))
+        ba = analyze_boundary(self._bc_labels, Jbc, J0, JT)
+        # the manifold counts w as free directions; report the state-space dimension
+        ba.manifold_dims = (ba.manifold_dims[0] - a.nw, ba.manifold_dims[1] - a.nw)
+        return ba
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, guess=None, redundancy: str = "drop", raise_on_failure: bool = False):
+        """Transcribe and solve with IPOPT; returns an :class:`OCPSolution`.
+
+        Parameters
+        ----------
+        guess : None, OCPSolution, or dict
+            None: simulate the model from a consistent initial point with the controls at
+            zero (clipped to their bounds). A previous :class:`OCPSolution`: warm start from
+            it. A dict: constant or callable guesses for controls (``{"u": lambda t: ...}``,
+            used in the simulation) and constant guesses for states at ``t = 0``.
+        redundancy : {"drop", "keep"}
+            "drop" imposes an independent subset of the boundary conditions on the invariant
+            manifold (see :mod:`daekit.ocp.consistency`); "keep" imposes all (naive).
+        raise_on_failure : bool
+            Raise :class:`~daekit.errors.OCPError` with the report when IPOPT does not succeed
+            (otherwise ``sol.success`` is False and ``sol.report`` says why).
+        """
+        from .guess import make_guess
+        from .report import diagnose
+
+        if redundancy not in ("drop", "keep"):
+            raise OCPError(f"solve(redundancy=...): 'drop' or 'keep', got {redundancy!r}")
+        t_start = _time.perf_counter()
+        self._prepare()
+        g = make_guess(self, guess)
+        ba = self._analyze(g)
+        self._last_boundary = ba
+        self._kept = ba.kept if redundancy == "drop" else list(range(len(self._bc_labels)))
+        if self.method == "collocation":
+            from .collocation import transcribe
+        else:
+            from .shooting import transcribe
+        tr = transcribe(self, g.fun)
+        B = tr.builder
+        lbx, ubx, x0, lbg, ubg = B.arrays()
+        if g.V is not None and g.V.size == x0.size and g.key == self._structure_key():
+            x0 = g.V.copy()
+        x0 = np.clip(x0, lbx, ubx)
+        V, G = B.V(), B.G()
+        opts = {"ipopt.print_level": 5 if self.verbose else 0, "print_time": self.verbose,
+                "ipopt.sb": "yes"}
+        if not tr.hessian_exact:
+            opts["ipopt.hessian_approximation"] = "limited-memory"
+        for k, val in self.solver_options.items():
+            opts[k if "." in k or k in ("print_time", "expand") else f"ipopt.{k}"] = val
+        try:
+            solver = ca.nlpsol("ocp", "ipopt", {"x": V, "f": tr.J, "g": G}, opts)
+        except RuntimeError as exc:
+            raise OCPError(f"could not build the NLP solver: {exc}") from None
+        t_build = _time.perf_counter() - t_start
+        res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        stats = dict(solver.stats())
+        stats["t_build"] = t_build
+        stats["t_total"] = _time.perf_counter() - t_start
+        stats["n_variables"] = int(V.numel())
+        stats["n_constraints"] = int(G.numel())
+        status = str(stats.get("return_status", "unknown"))
+        success = bool(stats.get("success", False)) or status in _STATUS_OK
+        Vopt = np.asarray(res["x"]).ravel()
+        gopt = np.asarray(res["g"]).ravel()
+        sol = OCPSolution._from_grid(self, tr, Vopt, float(res["f"]), success, status, stats)
+        sol.boundary = ba
+        sol.report, sol.infeasibilities = diagnose(
+            self, tr, ba, Vopt, gopt, lbg, ubg, lbx, ubx, success, status, stats, g
+        )
+        if not success and raise_on_failure:
+            raise OCPError(sol.report)
+        return sol
+
+    def _structure_key(self):
+        return (self.method, self.intervals, self.degree, self.control_mode,
+                self._T_free is not None, tuple(sorted(self._free_params)), tuple(self._kept))
+
+
+class OCPSolution:
+    """The solution of an :class:`OCP`: the same interface as a simulation Trajectory.
+
+    Attributes
+    ----------
+    success : bool
+        IPOPT converged (``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``).
+    status : str
+        IPOPT's return status.
+    objective : float
+    t : numpy.ndarray
+        Time grid: ``0`` and every collocation point (shooting: the interval boundaries).
+    T : float
+        Final time.
+    invariants : numpy.ndarray (len(t), number of invariants)
+        The invariants along the solution (small: they are imposed at ``t = 0`` only).
+    invariant_names : list of str
+    parameters : dict
+        Parameter values used (free ones at their optimum).
+    stats : dict
+        IPOPT's statistics plus build time, sizes.
+    report : str
+        What was done: reduction, transcription, boundary conditions kept and dropped (and why),
+        solver outcome, and on failure the constraints at fault.
+    infeasibilities : list of (label, violation, time)
+        Largest constraint violations at the returned point (empty on success).
+
+    ``sol["p"]`` gives any original variable or element by name, ``(len(t),)`` for one element,
+    ``(len(t), k)`` for a vector.
+    """
+
+    def __init__(self) -> None:
+        self.success = False
+        self.status = ""
+        self.objective = float("nan")
+        self.t = np.zeros(0)
+        self.T = float("nan")
+        self.invariants = np.zeros((0, 0))
+        self.invariant_names: list[str] = []
+        self.parameters: dict[str, float] = {}
+        self.stats: dict = {}
+        self.report = ""
+        self.infeasibilities: list = []
+        self.boundary: BoundaryAnalysis | None = None
+
+    @classmethod
+    def _from_grid(cls, ocp: OCP, tr, V, f, success, status, stats) -> OCPSolution:
+        s = cls()
+        a = ocp._aug
+        fr, X, Z, W, T, P = (np.asarray(v) for v in tr.grid(V))
+        s.T = float(np.asarray(T).ravel()[0])
+        s.t = np.asarray(fr).ravel() * s.T
+        s._X, s._Z, s._W, s._P = X, Z, W, np.asarray(P).ravel()
+        s._aug = a
+        s._V = V
+        s._key = ocp._structure_key()
+        s.success, s.status, s.objective, s.stats = success, status, f, stats
+        s.parameters = dict(zip(a.p_names, s._P.tolist(), strict=True))
+        s.invariant_names = list(a.inv_names)
+        if a.inv.numel():
+            s.invariants = s._eval(a.inv)
+        else:
+            s.invariants = np.zeros((s.t.size, 0))
+        return s
+
+    def _eval(self, expr: ca.SX) -> np.ndarray:
+        a = self._aug
+        fn = ca.Function("ev", [a.t, a.x, a.z, a.w, a.p], [expr])
+        n = self.t.size
+        out = fn.map(n)(self.t.reshape(1, -1), self._X, self._Z, self._W,
+                        np.repeat(self._P.reshape(-1, 1), n, axis=1))
+        return np.asarray(out).T
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        els = self._aug.elements(name, f"solution[{name!r}]")
+        val = self._eval(ca.vertcat(*[self._aug.names[e] for e in els]))
+        return val[:, 0] if len(els) == 1 else val
+
+    @property
+    def controls(self) -> dict[str, np.ndarray]:
+        """The decision controls on the grid by name."""
+        return {n: self._W[i, :].copy() for i, n in enumerate(self._aug.w_names)}
+
+    def __repr__(self) -> str:
+        return (f"OCPSolution(success={self.success}, status={self.status!r}, "
+                f"objective={self.objective:.10g}, T={self.T:.6g}, {self.t.size} time points)")

@@ -1,0 +1,72 @@
+"""A small NLP builder shared by the transcriptions: decision blocks, constraint rows with
+labels (so that a failed solve can name the constraint at fault), and the solution grid."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["NLPBuilder", "RowGroup"]
+
+
+@dataclass
+class RowGroup:
+    """Constraint rows ``start:stop`` that come from one source (``label``) at time ``time``."""
+
+    start: int
+    stop: int
+    label: str
+    time: float | ca.SX | None = None
+    kind: str = "path"
+    names: list[str] | None = None
+
+
+@dataclass
+class NLPBuilder:
+    """Collects decision variables (SX or MX blocks) and labelled constraints."""
+
+    sym: type = ca.SX
+    vars: list = field(default_factory=list)
+    lbx: list = field(default_factory=list)
+    ubx: list = field(default_factory=list)
+    x0: list = field(default_factory=list)
+    g: list = field(default_factory=list)
+    lbg: list = field(default_factory=list)
+    ubg: list = field(default_factory=list)
+    groups: list[RowGroup] = field(default_factory=list)
+    nv: int = 0
+    ng: int = 0
+
+    def var(self, name: str, n: int, lb=-np.inf, ub=np.inf, guess=0.0):
+        """A new block of ``n`` decision variables; returns (symbol, first index)."""
+        v = self.sym.sym(name, n)
+        self.vars.append(v)
+        self.lbx.append(np.broadcast_to(np.asarray(lb, float), (n,)).copy())
+        self.ubx.append(np.broadcast_to(np.asarray(ub, float), (n,)).copy())
+        self.x0.append(np.broadcast_to(np.asarray(guess, float), (n,)).copy())
+        start = self.nv
+        self.nv += n
+        return v, start
+
+    def con(self, expr, lb, ub, label: str, time=None, kind: str = "path", names=None) -> None:
+        """Rows ``lb <= expr <= ub`` with a label for diagnostics."""
+        n = int(expr.numel())
+        if n == 0:
+            return
+        self.g.append(expr)
+        self.lbg.append(np.broadcast_to(np.asarray(lb, float), (n,)).copy())
+        self.ubg.append(np.broadcast_to(np.asarray(ub, float), (n,)).copy())
+        self.groups.append(RowGroup(self.ng, self.ng + n, label, time, kind, names))
+        self.ng += n
+
+    def arrays(self):
+        cat = lambda a: np.concatenate(a) if a else np.zeros(0)  # noqa: E731
+        return cat(self.lbx), cat(self.ubx), cat(self.x0), cat(self.lbg), cat(self.ubg)
+
+    def V(self):
+        return ca.vertcat(*self.vars) if self.vars else self.sym(0, 1)
+
+    def G(self):
+        return ca.vertcat(*self.g) if self.g else self.sym(0, 1)

@@ -1,0 +1,218 @@
+"""The solution's report, and the diagnosis of a failed solve (which constraint is at fault)."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+__all__ = ["diagnose"]
+
+
+def _fmt_list(items: list[str], limit: int = 10) -> str:
+    if len(items) <= limit:
+        return ", ".join(items)
+    return ", ".join(items[:limit]) + f", ... ({len(items)} in all)"
+
+
+def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, guess):
+    """Return (report text, infeasibilities)."""
+    a = ocp._aug
+    r = ocp.reduced
+    lines = []
+    name = getattr(ocp.model, "name", None) or "ReducedDAE"
+    lines.append(f"Optimal control of {name!r}.")
+    lines.append(
+        f"Index-1 system ({r.method}): {a.nx} states ({_fmt_list(a.x_names)}), "
+        f"{a.nz} algebraic unknowns, decision controls {_fmt_list(a.w_names) or 'none'}."
+    )
+    for base, K in a.chains:
+        lines.append(
+            f"The reduction needs derivatives of the input {base!r} up to order {K}: {base!r} and "
+            f"its lower derivatives are states of a chain of {K} integrator(s); the decision "
+            f"variable is its derivative of order {K}."
+        )
+    T = "free" if ocp._T_free is not None else f"{ocp._T_fixed:g}"
+    lines.append(
+        f"Transcription: {tr.method}, {ocp.intervals} intervals, final time {T}, controls "
+        f"piecewise {ocp.control_mode}; NLP with {stats['n_variables']} variables and "
+        f"{stats['n_constraints']} constraints. Initial guess: {guess.note}."
+    )
+    if a.inv_names:
+        lines.append(
+            "Invariants imposed at t = 0 only (exact dynamics keep them afterwards): "
+            f"{_fmt_list(a.inv_names)}."
+        )
+    if ba.labels:
+        n = ba.n_conditions
+        if ocp._kept == list(range(n)) and ba.dropped:
+            lines.append(
+                f"Boundary conditions: {n} given, but only {ba.rank} are independent on the "
+                f"invariant manifold (dimension {ba.manifold_dims[0]} at t = 0 and "
+                f"{ba.manifold_dims[1]} at t = T): all were imposed as asked (redundancy='keep'),"
+                " which makes the NLP's constraint Jacobian rank deficient."
+            )
+        elif ba.dropped:
+            dropped = [ba.labels[i] for i in ba.dropped]
+            v0, vT, P, TT = (np.asarray(x) for x in tr.ends(V))
+            res = np.asarray(ocp._bc_fun(v0, vT, P, TT)).ravel()
+            worst = max(abs(res[i]) for i in ba.dropped)
+            lines.append(
+                f"Boundary conditions: {n} given, rank {ba.rank} on the invariant manifold "
+                f"(dimension {ba.manifold_dims[0]} at t = 0 and {ba.manifold_dims[1]} at t = T; "
+                "the final state lies on it because the invariants hold at t = 0 and the "
+                "dynamics keep them). Imposed: "
+                f"{_fmt_list([ba.labels[i] for i in ba.kept])}. Dropped as implied by those and "
+                f"the invariants: {_fmt_list(dropped)}; their largest residual at the solution "
+                f"is {worst:.2e}."
+            )
+            if worst > 1e-4 * max(1.0, float(np.max(np.abs(v0), initial=1.0))):
+                lines.append(
+                    "WARNING: a dropped condition does not hold at the solution: it was implied "
+                    "only locally (another branch of the constraints was reached); give a guess "
+                    "closer to the intended solution or state the conditions differently."
+                )
+        else:
+            lines.append(f"Boundary conditions: {n}, independent on the invariant manifold.")
+    lines.append(
+        f"IPOPT: {status} after {stats.get('iter_count', '?')} iterations "
+        f"({stats['t_total']:.3g} s in all, {stats['t_build']:.3g} s to build the NLP)."
+    )
+    infeas = []
+    if not success:
+        infeas = _violations(tr, g, lbg, ubg)
+        pre = _endpoint_checks(ocp, guess)
+        lines.append("The solver did not succeed.")
+        if pre:
+            lines.extend(pre)
+        if infeas:
+            lines.append("Largest constraint violations at the point IPOPT returned:")
+            for lab, v, t in infeas[:6]:
+                when = f" at t = {t:.4g}" if t is not None else ""
+                lines.append(f"  {lab}{when}: violated by {v:.3e}")
+        active = _active_bounds(ocp, tr, V, lbx, ubx)
+        if active:
+            lines.append(f"Active variable bounds there: {_fmt_list(active)}.")
+        if not pre and not infeas:
+            lines.append(
+                "All constraints hold at the returned point: the failure is one of convergence "
+                "(try more iterations, a better guess, or scaling)."
+            )
+        else:
+            lines.append(
+                "Check the constraints named above: they cannot hold together with the "
+                "dynamics and the invariants (or need a better initial guess)."
+            )
+    return "\n".join(lines), infeas
+
+
+def _violations(tr, g, lbg, ubg):
+    viol = np.maximum(np.maximum(lbg - g, g - ubg), 0.0)
+    viol[~np.isfinite(viol)] = np.inf
+    best: dict[str, tuple[float, float | None]] = {}
+    for grp in tr.builder.groups:
+        for i in range(grp.start, grp.stop):
+            v = float(viol[i])
+            if v <= 1e-6:
+                continue
+            lab = grp.label
+            if grp.names:
+                k = i - grp.start
+                sub = grp.names[k]
+                if grp.kind == "invariant":
+                    lab = f"invariant {sub!r}"
+                elif grp.kind == "boundary":
+                    lab = f"boundary condition {sub}"
+                else:
+                    lab = sub
+            t = grp.time if isinstance(grp.time, (int, float)) else None
+            if lab not in best or v > best[lab][0]:
+                best[lab] = (v, t)
+    items = sorted(best.items(), key=lambda kv: -kv[1][0])
+    tscale = 1.0
+    return [(lab, v, None if t is None else t * tscale) for lab, (v, t) in items]
+
+
+def _active_bounds(ocp, tr, V, lbx, ubx) -> list[str]:
+    a = ocp._aug
+    out = []
+    lb, ub = ocp._lb, ocp._ub
+    for kind, names in (("x", a.x_names), ("z", a.z_names), ("w", a.w_names)):
+        for i, nm in enumerate(names):
+            if np.isfinite(lb[kind][i]):
+                out.append((nm, ">=", lb[kind][i], kind, i))
+            if np.isfinite(ub[kind][i]):
+                out.append((nm, "<=", ub[kind][i], kind, i))
+    if not out:
+        return []
+    fr, X, Z, W, T, P = (np.asarray(v) for v in tr.grid(V))
+    M = {"x": X, "z": Z, "w": W}
+    res = []
+    for nm, op, val, kind, i in out:
+        row = M[kind][i, :]
+        tol = 1e-6 * max(1.0, abs(val))
+        if (op == ">=" and np.any(row <= val + tol)) or (op == "<=" and np.any(row >= val - tol)):
+            res.append(f"{nm} {op} {val:g}")
+    return res
+
+
+def _endpoint_checks(ocp, guess) -> list[str]:
+    """Can the conditions at t = 0 (resp. T) hold together with alg, invariants and bounds?"""
+    a = ocp._aug
+    out = []
+    n = a.nx + a.nz + a.nw
+    p = guess.p
+    T = guess.T
+    xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
+    lbv = np.concatenate([xlb, zlb, wlb])
+    ubv = np.concatenate([xub, zub, wub])
+    for kind, t in (("initial", 0.0), ("final", T)):
+        v = ca.SX.sym("v", n)
+        rows = ocp._bc_fun(v, v, ca.DM(p), t)
+        idx = [i for i, k in enumerate(ocp._bc_kinds) if k == kind]
+        labels = [ocp._bc_labels[i] for i in idx] + [f"algebraic equation {i}" for i in
+                                                      range(a.nz)] + [
+            f"invariant {nm!r}" for nm in a.inv_names]
+        eqs = ca.vertcat(*[rows[i] for i in idx], ocp._man_fun(t, v, ca.DM(p)))
+        if eqs.numel() == 0:
+            continue
+        path = None
+        if ocp._path_fun is not None:
+            x, z, w = v[: a.nx], v[a.nx: a.nx + a.nz], v[a.nx + a.nz:]
+            path = ocp._path_fun(t, x, z, w, ca.DM(p))
+        x0, _, _ = guess.fun(np.array([t]))
+        start = np.concatenate([guess.fun(np.array([t]))[k][:, 0] for k in range(3)])
+        del x0
+        s = ca.SX.sym("s", eqs.numel())
+        # minimize the equality residual (slacks) subject to bounds and path constraints
+        nlp = {"x": ca.vertcat(v, s), "f": ca.sumsqr(s), "g": ca.vertcat(eqs - s, *(
+            [path] if path is not None else []))}
+        lbg = np.concatenate([np.zeros(eqs.numel())] + (
+            [ocp._path_lb] if path is not None else []))
+        ubg = np.concatenate([np.zeros(eqs.numel())] + (
+            [ocp._path_ub] if path is not None else []))
+        try:
+            solver = ca.nlpsol("chk", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False,
+                                                     "ipopt.sb": "yes", "ipopt.max_iter": 300})
+            res = solver(x0=np.concatenate([np.clip(start, lbv, ubv), np.zeros(eqs.numel())]),
+                         lbx=np.concatenate([lbv, -np.inf * np.ones(eqs.numel())]),
+                         ubx=np.concatenate([ubv, np.inf * np.ones(eqs.numel())]),
+                         lbg=lbg, ubg=ubg)
+        except RuntimeError:
+            continue
+        sl = np.asarray(res["x"]).ravel()[n:]
+        if np.max(np.abs(sl), initial=0.0) > 1e-5:
+            bad = [f"{labels[i]} (residual {sl[i]:+.3g})" for i in np.argsort(-np.abs(sl))
+                   if abs(sl[i]) > 1e-5]
+            where = "t = 0" if kind == "initial" else "t = T"
+            vals = np.asarray(res["x"]).ravel()[:n]
+            names = a.x_names + a.z_names + a.w_names
+            act = [f"{names[i]} {'>=' if abs(vals[i] - lbv[i]) < 1e-6 else '<='} "
+                   f"{lbv[i] if abs(vals[i] - lbv[i]) < 1e-6 else ubv[i]:g}"
+                   for i in range(n) if abs(vals[i] - lbv[i]) < 1e-6 or abs(vals[i] - ubv[i]) < 1e-6]
+            msg = (f"INFEASIBLE at {where}: the {kind} conditions, the algebraic equations, the "
+                   f"invariants and the bounds cannot hold together; at the closest point the "
+                   f"violated ones are {_fmt_list(bad, 6)}")
+            if act:
+                msg += f", with the bounds {_fmt_list(act, 6)} active"
+            out.append(msg + ".")
+    return out

@@ -571,6 +571,12 @@ class LagrangianSystem:
         M = _to_scipy(ca.DM(self.mass_matrix(q, pvals)))
         d = M.diagonal()
         qn = self._qnames
+        if not np.all(np.isfinite(M.data)):
+            raise ModelError(
+                f"{label}: the mass matrix is not finite {where} (q = {np.round(q, 4).tolist()}); "
+                "if the coordinates have a restricted range, pass check=False and check a valid "
+                "configuration with check_configuration(q)"
+            )
         for i in range(self.n):
             if not d[i] > 0:
                 raise ModelError(

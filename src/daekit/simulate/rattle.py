@@ -76,11 +76,16 @@ class ConstrainedMechanics:
     c : casadi.SX
         Holonomic constraints ``c(q) = 0``, an ``(m, 1)`` expression of ``q`` (and ``p``).
     force : casadi.SX or None
-        Additional generalized force ``F(t, q)`` (no velocity dependence), ``(n, 1)``.
+        Additional generalized force ``F(t, q, u)`` (no velocity dependence), ``(n, 1)``.
     t : casadi.SX or None
         The time symbol ``force`` may use.
+    u : casadi.SX or None
+        Input symbols ``force`` may use; their values are given as functions of time when
+        simulating (``inputs={"u": ...}``).
     p, p_values : casadi.SX, array
         Parameters and their default values (constant during a run).
+    u_names, p_names : list of str
+        Element names of ``u`` and ``p`` (default ``u[i]``, and the symbols' own names).
     q_names, v_names : list of str
         Names of the coordinates and of their velocities (default ``q[i]`` and ``der(q)[i]``).
     constraint_names, multiplier_names : list of str
@@ -100,6 +105,9 @@ class ConstrainedMechanics:
     v_names: list[str] | None = None
     constraint_names: list[str] | None = None
     multiplier_names: list[str] | None = None
+    u: Any = None
+    u_names: list[str] | None = None
+    p_names: list[str] | None = None
 
     def __post_init__(self) -> None:
         self.q = _column_symbol(self.q, "q")
@@ -116,6 +124,13 @@ class ConstrainedMechanics:
                 "p_values: give one value per parameter element"
             )
         self.p_values = pv
+        if self.p_names is None:
+            self.p_names = [self.p[i].name() for i in range(self.p.numel())]
+        self.p_names = list(self.p_names)
+        if self.u is None:
+            self.u = ca.SX(0, 1)
+        self.u = _column_symbol(self.u, "u") if self.u.numel() else ca.SX(0, 1)
+        self.u_names = list(self.u_names) if self.u_names else _indexed("u", self.u.numel())
         self.M = _as_sx(self.M, "M")
         if self.M.shape != (n, n):
             raise ModelError(
@@ -150,6 +165,8 @@ class ConstrainedMechanics:
             ("v_names", self.v_names, n),
             ("constraint_names", self.constraint_names, m),
             ("multiplier_names", self.multiplier_names, m),
+            ("u_names", self.u_names, self.u.numel()),
+            ("p_names", self.p_names, self.p.numel()),
         ):
             if len(names) != size:
                 raise ModelError(
@@ -158,7 +175,7 @@ class ConstrainedMechanics:
         allowed = ca.vertcat(self.q, self.p)
         for what, expr in (("M", self.M), ("V", self.V), ("c", self.c)):
             _check_free(expr, allowed, what)
-        _check_free(self.force, ca.vertcat(self.q, self.p, self.t), "force")
+        _check_free(self.force, ca.vertcat(self.q, self.p, self.t, self.u), "force")
 
     @property
     def n(self) -> int:
@@ -254,6 +271,19 @@ def _indexed(base: str, size: int) -> list[str]:
     return [base] if size == 1 else [f"{base}[{i}]" for i in range(size)]
 
 
+def _der2_name(name: str) -> str | None:
+    """``"p[0]"`` -> ``"der(p,2)[0]"``, ``"x"`` -> ``"der(x,2)"``; None for other names."""
+    from ..model import parse_name
+
+    try:
+        base, order, idx = parse_name(name)
+    except ModelError:
+        return None
+    if order:
+        return None
+    return f"der({base},2)" + ("" if idx is None else f"[{idx}]")
+
+
 def _der_name(name: str) -> str:
     if "[" in name and not name.startswith("der("):
         b, rest = name.split("[", 1)
@@ -291,14 +321,14 @@ def _as_sx(x: Any, what: str) -> ca.SX:
 
 
 def _check_free(expr: ca.SX, allowed: ca.SX, what: str) -> None:
-    free = ca.symvar(expr)
-    allowed_names = {str(s) for s in ca.symvar(allowed)}
-    bad = [str(s) for s in free if str(s) not in allowed_names]
+    ok = {s.element_hash() for s in ca.symvar(allowed)}
+    bad = [s.name() for s in ca.symvar(expr) if s.element_hash() not in ok]
     if bad:
         raise ModelError(
             f"ConstrainedMechanics: {what} depends on {bad}, which is not a coordinate, "
-            "parameter or (for force) time: RATTLE needs position-only forces; add velocity "
-            "dependence (damping) with an index-1 integrator instead (method='idas')"
+            "parameter or (for force) time or input: RATTLE needs forces F(t, q, u) without "
+            "velocities; simulate velocity-dependent forces (damping, friction) with an index-1 "
+            "integrator instead (method='idas')"
         )
 
 
@@ -310,60 +340,214 @@ def _inv_small(M: ca.SX) -> ca.SX:
 # adapters
 
 
-def as_constrained_mechanics(system: Any) -> ConstrainedMechanics:
+def as_constrained_mechanics(system: Any, params: dict | None = None) -> ConstrainedMechanics:
     """Read a RATTLE-ready mechanical system off ``system``.
 
-    Accepted: a :class:`ConstrainedMechanics`; any object with attributes ``q``, ``M``, ``V``
-    and ``c`` (SX expressions; optional ``force``, ``t``, ``p``, ``p_values``, name lists),
-    e.g. the Lagrangian front end of :mod:`daekit.mechanics`; an object whose ``to_rattle()`` or
-    ``rattle_system()`` method returns one of these; a ``ReducedDAE`` whose
-    ``info["mechanics"]`` or ``model`` is one of these.
+    Accepted: a :class:`ConstrainedMechanics`; a :class:`daekit.mechanics.LagrangianSystem`
+    (its kinetic energy must be ``q'^T M(q) q' / 2`` plus velocity-free terms, its forces free
+    of velocities once the parameter values are in); a ``ReducedDAE`` made by it
+    (``r.info["lagrangian"]``, as from ``LagrangianSystem.index1()``); a dict or any object with
+    ``q``, ``M``, ``V`` and ``c`` (SX expressions; optional ``force``, ``t``, ``u``, ``p``,
+    ``p_values`` and name lists). ``params`` overrides parameter values by name.
     """
+    sysm = _as_mechanics(system, params)
+    return _with_params(sysm, params) if params else sysm
+
+
+def _as_mechanics(system: Any, params: dict | None) -> ConstrainedMechanics:
     if isinstance(system, ConstrainedMechanics):
         return system
-    for meth in ("to_rattle", "rattle_system", "constrained_mechanics"):
-        if callable(getattr(system, meth, None)):
-            return as_constrained_mechanics(getattr(system, meth)())
+    if _is_lagrangian(system):
+        return _from_lagrangian(system, params)
     if isinstance(system, dict) and {"q", "M", "V", "c"} <= set(system):
         return ConstrainedMechanics(**system)
     if all(hasattr(system, a) for a in ("q", "M", "V", "c")):
         kw = {}
-        for a in ("force", "t", "p", "p_values", "q_names", "v_names", "constraint_names",
-                  "multiplier_names"):
+        for a in ("force", "t", "u", "p", "p_values", "q_names", "v_names", "constraint_names",
+                  "multiplier_names", "u_names", "p_names"):
             val = getattr(system, a, None)
             if val is not None and not callable(val):
                 kw[a] = val
         return ConstrainedMechanics(q=system.q, M=system.M, V=system.V, c=system.c, **kw)
     info = getattr(system, "info", None)
     if isinstance(info, dict):
-        for key in ("mechanics", "lagrangian", "rattle"):
+        for key in ("lagrangian", "mechanics", "rattle"):
             if key in info:
-                return as_constrained_mechanics(info[key])
-    model = getattr(system, "model", None)
-    if model is not None and model is not system:
-        try:
-            return as_constrained_mechanics(model)
-        except ModelError:
-            pass
+                return _as_mechanics(info[key], params)
     raise ModelError(
         f"method='rattle' needs a mechanical system (coordinates q, mass matrix M, potential V, "
-        f"constraints c), got {type(system).__name__}: build it with daekit.mechanics or "
-        "daekit.simulate.rattle.ConstrainedMechanics"
+        f"holonomic constraints c), got {type(system).__name__}"
+        + (" without info['lagrangian']" if info is not None else "")
+        + ": build it with daekit.mechanics.LagrangianSystem (and pass it or its index1()) or "
+        "with daekit.simulate.rattle.ConstrainedMechanics"
     )
+
+
+def _is_lagrangian(obj: Any) -> bool:
+    return all(
+        hasattr(obj, a)
+        for a in ("mass_matrix", "potential_energy", "kinetic_energy", "momentum", "constraint",
+                  "generalized_force", "coordinate_names", "velocity_names", "p_values")
+    )
+
+
+def _from_lagrangian(ls: Any, params: dict | None) -> ConstrainedMechanics:
+    """Rebuild a LagrangianSystem through its public CasADi Functions in fresh SX symbols."""
+    from ..model import element_name
+
+    name = getattr(ls, "name", "mechanism")
+    n = int(ls.n)
+    m = int(getattr(ls, "m", 0))
+    pv = np.asarray(ls.p_values, float).ravel()
+    q = ca.SX.sym("q", n)
+    dq = ca.SX.sym("dq", n)
+    p = ca.SX.sym("p", pv.size)
+    t = ca.SX.sym("t")
+    groups_u = list(getattr(ls, "input_groups", []))
+    nu = sum(k for _, k in groups_u)
+    u = ca.SX.sym("u", nu)
+    zero = ca.SX.zeros(n, 1)
+    M = ls.mass_matrix(q, p)
+    T0 = ls.kinetic_energy(q, zero, p)
+    b = ls.momentum(q, zero, p)
+    pg = getattr(ls, "parameter_groups", [])
+    p_names = [element_name(g, k, i) for g, k, _ in pg for i in range(k)]
+    if len(p_names) != pv.size:
+        p_names = [f"p[{i}]" for i in range(pv.size)]
+    pv = _override(pv, p_names, params or {})
+    pvals = ca.DM(pv)
+    bfun = ca.Function("b", [q], [ca.substitute(b, p, pvals)])
+    rng = np.random.default_rng(7)
+    if any(np.max(np.abs(np.array(bfun(rng.uniform(-1, 1, n))))) > 1e-12 for _ in range(3)):
+        raise ModelError(
+            f"mechanical system {name!r}: the kinetic energy has terms linear in the velocities "
+            "(dT/dq' is not zero at q' = 0), e.g. a moving frame; RATTLE here needs "
+            "T = q'^T M(q) q' / 2 (+ velocity-free terms): use method='idas'"
+        )
+    V = ls.potential_energy(q, p) - T0  # velocity-free kinetic terms act as a potential
+    c = ls.constraint(q, p) if m else ca.SX(0, 1)
+    Q = ls.generalized_force(t, q, dq, u, p)
+    Qv = ca.substitute(Q, p, pvals)
+    if ca.depends_on(Qv, dq):
+        bad = [ls.coordinate_names[i] for i in range(n) if ca.depends_on(Qv[i], dq)]
+        raise ModelError(
+            f"mechanical system {name!r}: the generalized force on {bad} depends on the "
+            "velocities (damping or friction); RATTLE is for conservative systems with forces "
+            "F(t, q, u): set the friction parameters to 0 or use method='idas'"
+        )
+    Q = ca.substitute(Q, dq, ca.DM.zeros(n, 1))  # velocity terms vanish at these parameters
+    u_names = [element_name(g, k, i) for g, k in groups_u for i in range(k)]
+    mname = getattr(ls, "multiplier_name", "z")
+    return ConstrainedMechanics(
+        q=q, M=M, V=V, c=c, force=Q, t=t, u=u, p=p, p_values=pv,
+        q_names=ls.coordinate_names, v_names=ls.velocity_names,
+        constraint_names=list(getattr(ls, "constraint_names", [])) or None,
+        multiplier_names=[element_name(mname, m, j) for j in range(m)] or None,
+        u_names=u_names or None, p_names=p_names or None,
+    )
+
+
+def _trace_callable(key: str, f: Any, t: ca.SX, t_check: Any) -> ca.SX:
+    """``f(t)`` as an SX expression, checked against numeric calls at ``t_check``."""
+    why = ""
+    try:
+        got = f(t)
+        if isinstance(got, (list, tuple)):
+            expr = ca.vertcat(*[ca.SX(e) for e in got])
+        else:
+            expr = ca.vec(ca.SX(got))
+        fe = ca.Function("u", [t], [expr])
+        for tc in t_check:
+            ref = np.atleast_1d(np.asarray(f(float(tc)), float)).ravel()
+            val = np.array(fe(float(tc))).ravel()
+            if ref.size != val.size or not np.allclose(val, ref, rtol=1e-12, atol=1e-12):
+                why = f"at t = {float(tc):g} the traced function gives {val} instead of {ref}"
+                break
+        else:
+            return expr
+    except Exception as exc:  # noqa: BLE001
+        why = f"{type(exc).__name__}: {exc}"
+    raise SimulationError(
+        f"RATTLE: the input {key!r} is a Python function that CasADi cannot trace ({why}); "
+        "RATTLE runs its time loop inside CasADi, so give the input as numbers or as a CasADi "
+        "expression of time (e.g. ca.sin(t)), or use method='idas'"
+    )
+
+
+def _bind_inputs(sysm: ConstrainedMechanics, inputs: Any, t_check: Any = (0.0, 1.0)) -> ca.SX:
+    """The force with the inputs replaced by expressions of time.
+
+    ``inputs`` maps names (``"u"``, ``"u[0]"``) to numbers, CasADi SX expressions of one time
+    symbol, or Python callables ``f(t)`` built from operations CasADi understands (called once
+    with a symbol, then compared with numeric calls at the times ``t_check``). Missing inputs
+    are an error.
+    """
+    nu = sysm.u.numel()
+    if not nu:
+        if inputs:
+            raise SimulationError(
+                f"RATTLE: inputs {sorted(inputs)} were given but the mechanical system has none"
+            )
+        return sysm.force
+    inputs = dict(inputs or {})
+    vals: list[ca.SX | None] = [None] * nu
+    names = sysm.u_names
+    for key, val in inputs.items():
+        elems = [i for i, nm in enumerate(names) if nm == key or nm.startswith(key + "[")]
+        if not elems:
+            raise SimulationError(
+                f"RATTLE: {key!r} is not an input of this system; its inputs are {names}"
+            )
+        if callable(val) and not isinstance(val, (ca.SX, ca.DM, ca.MX)):
+            expr = _trace_callable(key, val, sysm.t, t_check)
+        else:
+            if isinstance(val, ca.MX):
+                raise SimulationError(f"RATTLE: input {key!r} is MX; give an SX expression")
+            expr = ca.vec(val if isinstance(val, ca.SX)
+                          else ca.SX(ca.DM(np.atleast_1d(np.asarray(val, float)))))
+            free = ca.symvar(expr)
+            if len(free) > 1:
+                raise SimulationError(
+                    f"RATTLE: the input {key!r} depends on {[s.name() for s in free]}; an input "
+                    "may depend on time only"
+                )
+            if free:
+                expr = ca.substitute(expr, free[0], sysm.t)
+        if expr.numel() == 1 and len(elems) > 1:
+            expr = ca.repmat(expr, len(elems), 1)
+        if expr.numel() != len(elems):
+            raise SimulationError(
+                f"RATTLE: input {key!r} has {len(elems)} element(s) but {expr.numel()} values"
+            )
+        for k, i in enumerate(elems):
+            vals[i] = expr[k]
+    missing = [names[i] for i in range(nu) if vals[i] is None]
+    if missing:
+        raise SimulationError(
+            f"RATTLE: no value for the input(s) {missing}; give them in inputs={{...}} as "
+            "numbers or CasADi expressions of time"
+        )
+    return ca.substitute(sysm.force, sysm.u, ca.vertcat(*vals))
 
 
 # ----------------------------------------------------------------------------------------------
 # the step
 
 
-def _build_step(sysm: ConstrainedMechanics, newton_iter: int) -> tuple[ca.Function, dict]:
-    """One RATTLE step ``X -> X+`` with ``X = [t; q; p; lam; max|c|; max|c'|]``, input ``h``."""
+def _build_step(
+    sysm: ConstrainedMechanics, newton_iter: int, force: ca.SX | None = None
+) -> tuple[ca.Function, dict]:
+    """One RATTLE step ``X -> X+`` with ``X = [t; q; p; lam; max|c|; max|c'|]``, input ``h``.
+
+    ``force``: the applied force with the inputs already replaced (default ``sysm.force``).
+    """
     n, m = sysm.n, sysm.m
     pv = ca.DM(sysm.p_values)
     qs, ts = sysm.q, sysm.t
     # substitute parameter values: they are constants during a run
     sub = (lambda e: ca.substitute(e, sysm.p, pv)) if sysm.p.numel() else (lambda e: e)
-    Mq, Vq, cq, Fq = sub(sysm.M), sub(sysm.V), sub(sysm.c), sub(sysm.force)
+    force = sysm.force if force is None else force
+    Mq, Vq, cq, Fq = sub(sysm.M), sub(sysm.V), sub(sysm.c), sub(force)
     Gq = ca.jacobian(cq, qs)
     fq = -ca.gradient(Vq, qs) + Fq  # applied generalized force
     constant_M = not ca.depends_on(Mq, qs)
@@ -432,21 +616,26 @@ def _build_step(sysm: ConstrainedMechanics, newton_iter: int) -> tuple[ca.Functi
     Xn = ca.vertcat(t1, q1, p1, lam, ca.fmax(cmax, cres), ca.fmax(cdmax, cdres))
     step = ca.Function("rattle_step", [X, h], [Xn], ["X", "h"], ["Xn"])
 
-    # output helpers: velocity, energy, invariants, consistent multiplier (index-1 formula)
+    # output helpers: velocity, energy, invariants, consistent multiplier and acceleration
+    # (index-1 formula): M q'' + M' q' - grad_q T = f - G^T lam,  G q'' + (G q')_q q' = 0
     ps = ca.SX.sym("p", n)
     v = ca.solve(Mq, ps)
     vs = ca.SX.sym("v", n)
+    Tv = 0.5 * ca.dot(vs, ca.mtimes(Mq, vs))
     E = 0.5 * ca.dot(ps, v) + Vq
     cd = ca.mtimes(Gq, vs)
-    # c'' = G M^{-1} (f - G^T lam) + d/dq(G v) v = 0
     curv = ca.jtimes(cd, qs, vs)
-    GMi = ca.solve(Mq, Gq.T).T  # G M^{-1}
-    A = ca.mtimes(GMi, Gq.T)
-    lam_c = ca.solve(A, ca.mtimes(GMi, fq) + curv) if m else ca.SX(0, 1)
-    out = ca.Function(
-        "rattle_out", [ts, qs, ps], [v, E, cq, ca.substitute(cd, vs, v),
-                                     ca.substitute(lam_c, vs, v)]
-    )
+    vel = ca.jtimes(ca.mtimes(Mq, vs), qs, vs) - ca.gradient(Tv, qs) if not constant_M else 0
+    rhs = fq - vel
+    if m:
+        MiGt = ca.solve(Mq, Gq.T)
+        lam_c = ca.solve(ca.mtimes(Gq, MiGt), ca.mtimes(Gq, ca.solve(Mq, rhs)) + curv)
+        acc = ca.solve(Mq, rhs - ca.mtimes(Gq.T, lam_c))
+    else:
+        lam_c = ca.SX(0, 1)
+        acc = ca.solve(Mq, rhs)
+    outs = [ca.substitute(e, vs, v) for e in (cd, lam_c, acc)]
+    out = ca.Function("rattle_out", [ts, qs, ps], [v, E, cq] + outs)
     p_of_v = ca.Function("p_of_v", [qs, vs], [ca.mtimes(Mq, vs)])
     helpers = {
         "out": out,
@@ -596,8 +785,11 @@ def simulate_rattle(
         output spacing, but at most ``1e-2``.
     params : dict, optional
         Parameter values by name, overriding the defaults.
-    inputs : must be None
-        Time-dependent forces belong in ``system.force`` (an expression of ``t`` and ``q``).
+    inputs : dict, optional
+        Values of the system's inputs ``u`` (in the force) by name: numbers, CasADi SX
+        expressions of time, or callables ``f(t)`` that CasADi can trace (called once with a
+        symbol: ``lambda t: [0, 0, ca.sin(t)]``). RATTLE runs its loop inside CasADi, so an
+        opaque Python function is refused with a clear error.
     newton_iter : int
         Newton iterations per step for the multiplier (unrolled; the starting guess is the
         previous multiplier, so 3-4 iterations reach rounding level).
@@ -617,19 +809,13 @@ def simulate_rattle(
         ``energy_error_max``.
     """
     wall0 = time.perf_counter()
-    if inputs:
-        raise SimulationError(
-            "method='rattle' does not take inputs: write time-dependent forces into the "
-            "mechanical system's force F(t, q), or use method='idas'"
-        )
-    sysm = as_constrained_mechanics(system)
-    if params:
-        sysm = _with_params(sysm, params)
+    sysm = as_constrained_mechanics(system, params)
     tt = np.asarray(t, float).ravel()
     if tt.size < 2 or np.any(np.diff(tt) <= 0) or not np.all(np.isfinite(tt)):
         raise SimulationError(
             "RATTLE: the output times t must be finite, increasing and at least two"
         )
+    force = _bind_inputs(sysm, inputs, (tt[0], 0.5 * (tt[0] + tt[-1]), tt[-1]))
     spacing = np.diff(tt)
     if dt is None:
         dt = min(float(np.min(spacing)), DEFAULT_DT)
@@ -638,7 +824,7 @@ def simulate_rattle(
     nsteps = np.maximum(1, np.ceil(spacing / dt * (1 - 1e-12))).astype(int)
     hs = spacing / nsteps
 
-    step, helpers = _build_step(sysm, newton_iter)
+    step, helpers = _build_step(sysm, newton_iter, force)
     n, m = sysm.n, sysm.m
     q0, v0 = _read_init(sysm, init)
     q0, v0 = _make_consistent(sysm, helpers, q0, v0, init_tol)
@@ -676,11 +862,22 @@ def simulate_rattle(
         block = np.array(Xout).T
         Xs[i + 1 : j + 1] = block
         Xcur = Xout[:, -1]
-        bad = ~np.isfinite(block).all(axis=1) | (block[:, -2] > tol) | (block[:, -1] > tol)
+        nonfinite = ~np.isfinite(block).all(axis=1)
+        bad = nonfinite | (block[:, -2] > tol) | (block[:, -1] > tol)
         if np.any(bad):
             first = i + 1 + int(np.argmax(bad))
+            if nonfinite[first - i - 1]:
+                partial = _assemble(sysm, helpers, tt[:first], Xs[:first], nsteps[: first - 1],
+                                    wall0, dt, newton_iter)
+                raise SimulationError(
+                    f"RATTLE: NaN or Inf between t = {tt[first - 1]:.6g} and {tt[first]:.6g}: "
+                    "check the inputs and forces there (a force or input that is NaN) or the "
+                    "constraint Jacobian (it must keep full rank)",
+                    t=float(tt[first - 1]),
+                    trajectory=partial,
+                )
             partial = _assemble(sysm, helpers, tt[:first], Xs[:first], nsteps[: first - 1],
-                                wall0, dt)
+                                wall0, dt, newton_iter)
             raise SimulationError(
                 f"RATTLE: the Newton iteration for the constraint multipliers did not reach "
                 f"|c|, |c'| <= {tol:g} between t = {tt[first - 1]:.6g} and {tt[first]:.6g} "
@@ -696,16 +893,16 @@ def simulate_rattle(
         i = j
     if bar is not None:
         bar.close()
-    return _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt)
+    return _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt, newton_iter)
 
 
-def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt):
+def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt, newton_iter):
     n, m = sysm.n, sysm.m
     q = Xs[:, 1 : 1 + n]
     p = Xs[:, 1 + n : 1 + 2 * n]
     N = tt.size
     outm = helpers["out"].map(N) if N > 0 else helpers["out"]
-    v, E, c, cd, lam = (np.array(a) for a in outm(tt.reshape(1, -1), q.T, p.T))
+    v, E, c, cd, lam, acc = (np.array(a) for a in outm(tt.reshape(1, -1), q.T, p.T))
     values: dict[str, np.ndarray] = {}
     for i, s in enumerate(sysm.q_names):
         values[s] = q[:, i].copy()
@@ -713,6 +910,10 @@ def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt):
         values[s] = v[i].copy()
     for i, s in enumerate(sysm.multiplier_names):
         values[s] = lam[i].copy()
+    for i, s in enumerate(sysm.q_names):
+        a_name = _der2_name(s)
+        if a_name is not None and a_name not in values:
+            values[a_name] = acc[i].copy()
     E = E.ravel()
     inv = np.vstack([c, cd]).T if m else np.zeros((N, 0))
     inv_names = list(sysm.constraint_names) + [f"d/dt {s}" for s in sysm.constraint_names]
@@ -720,7 +921,7 @@ def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt):
         "method": "rattle",
         "steps": int(np.sum(nsteps)),
         "dt": float(dt),
-        "newton_iterations_per_step": None,
+        "newton_iterations": int(np.sum(nsteps)) * newton_iter,
         "wall_time": time.perf_counter() - wall0,
         "max_c": float(Xs[-1, -2]) if N else 0.0,
         "max_cdot": float(Xs[-1, -1]) if N else 0.0,
@@ -733,20 +934,33 @@ def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt):
 
 
 def _with_params(sysm: ConstrainedMechanics, params: dict) -> ConstrainedMechanics:
-    names = [str(s) for s in ca.symvar(sysm.p)] if sysm.p.numel() else []
-    pv = np.array(sysm.p_values, float).copy()
-    elems = [str(sysm.p[i]) for i in range(sysm.p.numel())]
-    for k, val in params.items():
-        if k not in elems:
-            raise ModelError(
-                f"RATTLE: unknown parameter {k!r}; the system's parameters are {names}"
-            )
-        pv[elems.index(k)] = float(val)
+    pv = _override(sysm.p_values, sysm.p_names, params)
     return ConstrainedMechanics(
         q=sysm.q, M=sysm.M, V=sysm.V, c=sysm.c, force=sysm.force, t=sysm.t, p=sysm.p,
         p_values=pv, q_names=sysm.q_names, v_names=sysm.v_names,
         constraint_names=sysm.constraint_names, multiplier_names=sysm.multiplier_names,
+        u=sysm.u, u_names=sysm.u_names, p_names=sysm.p_names,
     )
+
+
+def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
+    """Parameter values with ``params`` (by name or element name) put in."""
+    pv = np.array(p_values, float).copy()
+    for key, val in params.items():
+        elems = [i for i, nm in enumerate(names) if nm == key or nm.startswith(key + "[")]
+        if not elems:
+            raise ModelError(
+                f"RATTLE: unknown parameter {key!r}; the system's parameters are {names}"
+            )
+        arr = np.atleast_1d(np.asarray(val, float)).ravel()
+        if arr.size == 1:
+            arr = np.repeat(arr, len(elems))
+        if arr.size != len(elems) or not np.all(np.isfinite(arr)):
+            raise ModelError(
+                f"RATTLE: parameter {key!r} needs {len(elems)} finite value(s), got {val!r}"
+            )
+        pv[elems] = arr
+    return pv
 
 
 class _Progress:

@@ -38,7 +38,7 @@ Example
 >>> th = np.pi / 6
 >>> tr = simulate_rattle(sys, np.linspace(0, 5, 51),
 ...                      {"x": np.sin(th), "y": -np.cos(th)}, dt=1e-3)
->>> abs(tr["x"][-1] - (-0.47657872558204044491)) < 1e-5
+>>> bool(abs(tr["x"][-1] - (-0.47657872558204044491)) < 1e-5)
 True
 """
 

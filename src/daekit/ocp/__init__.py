@@ -162,7 +162,9 @@ class OCP:
             try:
                 T = float(t_final)
             except (TypeError, ValueError):
-                raise OCPError(f"OCP: t_final must be a number or Free(...), got {t_final!r}") from None
+                raise OCPError(
+                    f"OCP: t_final must be a number or Free(...), got {t_final!r}"
+                ) from None
             if not np.isfinite(T) or T <= 0:
                 raise OCPError(f"OCP: t_final must be positive and finite, got {t_final!r}")
             self._T_free, self._T_fixed, self._T_guess = None, T, T
@@ -228,7 +230,9 @@ class OCP:
 
     def _conditions(self, kind: str, values: dict) -> None:
         if not isinstance(values, dict):
-            raise OCPError(f"ocp.{kind}(...) takes a dict {{name: value}}, got {type(values).__name__}")
+            raise OCPError(
+                f"ocp.{kind}(...) takes a dict {{name: value}}, got {type(values).__name__}"
+            )
         for name, val in values.items():
             els = self._aug.elements(name, f"ocp.{kind}({{{name!r}: ...}})")
             vals = _vec(val, len(els), f"ocp.{kind}({{{name!r}: ...}})")
@@ -397,6 +401,10 @@ class OCP:
         xT, zT, wT = g.fun(np.array([T]))
         v0 = np.concatenate([x0[:, 0], z0[:, 0], w0[:, 0]])
         vT = np.concatenate([xT[:, 0], zT[:, 0], wT[:, 0]])
+        if "periodic" in self._bc_kinds:
+            # at a solution the periodic variables agree at both ends; the guess need not, and
+            # a non-periodic guess would hide the redundancy: analyze at vT = v0
+            vT = v0.copy()
         p = g.p
         Jbc = np.asarray(self._bc_jac(v0, vT, p, T))
         J0 = np.asarray(self._man_jac(0.0, v0, p))
@@ -410,7 +418,13 @@ class OCP:
         return ba
 
     # ------------------------------------------------------------------ solve
-    def solve(self, guess=None, redundancy: str = "drop", raise_on_failure: bool = False):
+    def solve(
+        self,
+        guess=None,
+        redundancy: str = "drop",
+        raise_on_failure: bool = False,
+        check: bool = True,
+    ) -> OCPSolution:
         """Transcribe and solve with IPOPT; returns an :class:`OCPSolution`.
 
         Parameters
@@ -423,12 +437,18 @@ class OCP:
         redundancy : {"drop", "keep"}
             "drop" imposes an independent subset of the boundary conditions on the invariant
             manifold (see :mod:`daekit.ocp.consistency`); "keep" imposes all (naive).
+        check : bool
+            First check that the initial (final) conditions, the algebraic equations, the
+            invariants, the bounds and the path constraints can hold together at ``t = 0``
+            (``t = T``), by a small least-squares problem; if they cannot, IPOPT is not run and
+            the report names the conditions at fault (status
+            ``"Infeasible_Boundary_Conditions"``).
         raise_on_failure : bool
             Raise :class:`~daekit.errors.OCPError` with the report when IPOPT does not succeed
             (otherwise ``sol.success`` is False and ``sol.report`` says why).
         """
         from .guess import make_guess
-        from .report import diagnose
+        from .report import diagnose, endpoint_checks
 
         if redundancy not in ("drop", "keep"):
             raise OCPError(f"solve(redundancy=...): 'drop' or 'keep', got {redundancy!r}")
@@ -455,13 +475,22 @@ class OCP:
             opts["ipopt.hessian_approximation"] = "limited-memory"
         for k, val in self.solver_options.items():
             opts[k if "." in k or k in ("print_time", "expand") else f"ipopt.{k}"] = val
+        opts.setdefault("ipopt.max_iter", 1000)
+        pre = endpoint_checks(self, g) if check else []
         try:
             solver = ca.nlpsol("ocp", "ipopt", {"x": V, "f": tr.J, "g": G}, opts)
         except RuntimeError as exc:
             raise OCPError(f"could not build the NLP solver: {exc}") from None
         t_build = _time.perf_counter() - t_start
-        res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-        stats = dict(solver.stats())
+        if pre:
+            # the end-point conditions cannot hold: do not run IPOPT into a wall
+            fx = ca.Function("fg", [V], [tr.J, G])(x0)
+            res = {"x": x0, "f": fx[0], "g": fx[1]}
+            stats = {"return_status": "Infeasible_Boundary_Conditions", "success": False,
+                     "iter_count": 0}
+        else:
+            res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            stats = dict(solver.stats())
         stats["t_build"] = t_build
         stats["t_total"] = _time.perf_counter() - t_start
         stats["n_variables"] = int(V.numel())
@@ -473,7 +502,7 @@ class OCP:
         sol = OCPSolution._from_grid(self, tr, Vopt, float(res["f"]), success, status, stats)
         sol.boundary = ba
         sol.report, sol.infeasibilities = diagnose(
-            self, tr, ba, Vopt, gopt, lbg, ubg, lbx, ubx, success, status, stats, g
+            self, tr, ba, Vopt, gopt, lbg, ubg, lbx, ubx, success, status, stats, g, pre
         )
         if not success and raise_on_failure:
             raise OCPError(sol.report)

@@ -104,7 +104,7 @@ class Augmented:
         return ca.vertcat(*[self.names[e] for e in self.elements(name, what)])
 
     def map_expr(self, expr, what: str) -> ca.SX:
-        """Rewrite a user expression (model symbols or the reduced system's own) in t, x, z, w, p."""
+        """Rewrite a user expression (model symbols or the reduced system's) in t, x, z, w, p."""
         if isinstance(expr, ca.MX):
             raise OCPError(
                 f"{what}: MX expressions are not supported; build it from the SX symbols of the "

@@ -5,7 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-__all__ = ["diagnose"]
+__all__ = ["diagnose", "endpoint_checks"]
 
 
 def _fmt_list(items: list[str], limit: int = 10) -> str:
@@ -14,7 +14,7 @@ def _fmt_list(items: list[str], limit: int = 10) -> str:
     return ", ".join(items[:limit]) + f", ... ({len(items)} in all)"
 
 
-def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, guess):
+def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, guess, pre=()):
     """Return (report text, infeasibilities)."""
     a = ocp._aug
     r = ocp.reduced
@@ -62,10 +62,10 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
                 "the final state lies on it because the invariants hold at t = 0 and the "
                 "dynamics keep them). Imposed: "
                 f"{_fmt_list([ba.labels[i] for i in ba.kept])}. Dropped as implied by those and "
-                f"the invariants: {_fmt_list(dropped)}; their largest residual at the solution "
-                f"is {worst:.2e}."
+                f"the invariants: {_fmt_list(dropped)}"
+                + ("." if pre else f"; their largest residual at the solution is {worst:.2e}.")
             )
-            if worst > 1e-4 * max(1.0, float(np.max(np.abs(v0), initial=1.0))):
+            if not pre and worst > 1e-4 * max(1.0, float(np.max(np.abs(v0), initial=1.0))):
                 lines.append(
                     "WARNING: a dropped condition does not hold at the solution: it was implied "
                     "only locally (another branch of the constraints was reached); give a guess "
@@ -79,9 +79,17 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
     )
     infeas = []
     if not success:
-        infeas = _violations(tr, g, lbg, ubg)
-        pre = _endpoint_checks(ocp, guess)
+        infeas = [] if pre else _violations(tr, g, lbg, ubg)
+        pre = list(pre)
         lines.append("The solver did not succeed.")
+        if ba.dropped and ocp._kept == list(range(ba.n_conditions)):
+            lines.append(
+                "The boundary conditions were all imposed (redundancy='keep') although only "
+                f"{ba.rank} of {ba.n_conditions} are independent on the invariant manifold: the "
+                "redundant ones ("
+                f"{_fmt_list([ba.labels[i] for i in ba.dropped])}) make the constraint Jacobian "
+                "rank deficient, which defeats IPOPT; solve with redundancy='drop'."
+            )
         if pre:
             lines.extend(pre)
         if infeas:
@@ -89,7 +97,7 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
             for lab, v, t in infeas[:6]:
                 when = f" at t = {t:.4g}" if t is not None else ""
                 lines.append(f"  {lab}{when}: violated by {v:.3e}")
-        active = _active_bounds(ocp, tr, V, lbx, ubx)
+        active = [] if pre else _active_bounds(ocp, tr, V, lbx, ubx)
         if active:
             lines.append(f"Active variable bounds there: {_fmt_list(active)}.")
         if not pre and not infeas:
@@ -112,7 +120,7 @@ def _violations(tr, g, lbg, ubg):
     for grp in tr.builder.groups:
         for i in range(grp.start, grp.stop):
             v = float(viol[i])
-            if v <= 1e-6:
+            if v <= 1e-9:
                 continue
             lab = grp.label
             if grp.names:
@@ -155,7 +163,7 @@ def _active_bounds(ocp, tr, V, lbx, ubx) -> list[str]:
     return res
 
 
-def _endpoint_checks(ocp, guess) -> list[str]:
+def endpoint_checks(ocp, guess) -> list[str]:
     """Can the conditions at t = 0 (resp. T) hold together with alg, invariants and bounds?"""
     a = ocp._aug
     out = []
@@ -206,9 +214,10 @@ def _endpoint_checks(ocp, guess) -> list[str]:
             where = "t = 0" if kind == "initial" else "t = T"
             vals = np.asarray(res["x"]).ravel()[:n]
             names = a.x_names + a.z_names + a.w_names
-            act = [f"{names[i]} {'>=' if abs(vals[i] - lbv[i]) < 1e-6 else '<='} "
-                   f"{lbv[i] if abs(vals[i] - lbv[i]) < 1e-6 else ubv[i]:g}"
-                   for i in range(n) if abs(vals[i] - lbv[i]) < 1e-6 or abs(vals[i] - ubv[i]) < 1e-6]
+            at_lo = np.abs(vals - lbv) < 1e-6
+            at_hi = np.abs(vals - ubv) < 1e-6
+            act = [f"{names[i]} >= {lbv[i]:g}" if at_lo[i] else f"{names[i]} <= {ubv[i]:g}"
+                   for i in range(n) if at_lo[i] or at_hi[i]]
             msg = (f"INFEASIBLE at {where}: the {kind} conditions, the algebraic equations, the "
                    f"invariants and the bounds cannot hold together; at the closest point the "
                    f"violated ones are {_fmt_list(bad, 6)}")

@@ -149,9 +149,10 @@ def _gather(unknowns, js, order_of) -> ca.SX:
     return ca.vertcat(*parts)
 
 
-def sigma_offsets(model: Model):
+def sigma_offsets(model: Model, validate: bool = True):
     """Validate the model and return Pryce's (transversal, c, d) for its Sigma matrix."""
-    model.validate()  # StructuralError naming the equations at fault
+    if validate:
+        model.validate()  # StructuralError naming the equations at fault
     inc = model.incidence()
     try:
         s = sigma_method(inc.n_equations, inc.rows, inc.cols, inc.vals)
@@ -160,12 +161,12 @@ def sigma_offsets(model: Model):
     return s.transversal, np.asarray(s.c, dtype=np.int64), np.asarray(s.d, dtype=np.int64)
 
 
-def expand(model: Model) -> Expansion:
+def expand(model: Model, validate: bool = True) -> Expansion:
     """Differentiate every equation ``F_i`` of ``model`` ``c_i`` times (Pryce's offsets).
 
     One ``casadi.jtimes`` call per differentiation level, over all equations of that level.
     """
-    _, c, d = sigma_offsets(model)
+    _, c, d = sigma_offsets(model, validate)
     unknowns = model.unknowns
     n = len(unknowns)
     F = model.residual

@@ -47,8 +47,17 @@ import scipy.linalg as sla
 from ..errors import ReductionError
 from ..model import Model
 from ..reduced import ReducedDAE
-from .differentiate import derivative_name, expand
-from .reduce import _assemble, _gather_pairs, _invariants, _states, _top_equations, check_index1
+from .differentiate import derivative_name
+from .reduce import (
+    _all_symbols,
+    _assemble,
+    _gather_pairs,
+    _invariants,
+    _states,
+    _top_equations,
+    amended_expansion,
+    check_index1,
+)
 
 __all__ = ["dummy_derivatives", "reselect", "selection_condition", "map_values"]
 
@@ -86,17 +95,6 @@ def _point_vector(ex, point: Mapping | None, seed: int):
         for i in range(var.size):
             P.append(get(var, i, 0, float(var.default[i])))
     return t, np.asarray(X), np.asarray(U), np.asarray(P)
-
-
-def _all_symbols(ex):
-    pairs = [(j, k) for j in range(ex.n) for k in range(int(ex.d[j]) + 1)]
-    X = _gather_pairs(ex, [j for j, _ in pairs], [k for _, k in pairs], None)
-    U = []
-    for var in ex.model.controls:
-        for k in range(ex.control_orders.get(var.name, 0) + 1):
-            U.append(var.der(k))
-    U = ca.vertcat(*U) if U else ca.SX(0, 1)
-    return X, U
 
 
 def _select(A: np.ndarray, m: int):
@@ -148,7 +146,7 @@ def dummy_derivatives(
     >>> r.x_names, r.state_selection["condition"]
     (['x', 'der(x)'], 1.0)
     """
-    ex = expand(model)
+    ex, amendments = amended_expansion(model, seed=seed)
     n, c, d = ex.n, ex.c, ex.d
     top = _top_equations(ex)
     hi = ex.unknown(d, range(n))
@@ -230,6 +228,7 @@ def dummy_derivatives(
     r.info["alg_names"] = alg_names
     r.info["chains"] = []  # invariants are part of alg: nothing to stabilize
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
+    r.info["amendments"] = amendments
     r.info["selection_jacobian"] = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
     r.info["selection_blocks"] = blocks
     if check:

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -108,7 +109,7 @@ def reduce_index(
         raise ReductionError(
             f"unknown reduction method {method!r}: use 'differentiate' or 'dummy_derivatives'"
         )
-    ex = expand(model)
+    ex, amendments = amended_expansion(model, seed=seed)
     n = ex.n
     c, d = ex.c, ex.d
     states = _states(ex, dummy=None)
@@ -132,9 +133,122 @@ def reduce_index(
     r.info["alg_names"] = alg_names
     r.info["chains"] = chains
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
+    r.info["amendments"] = amendments
     if check:
         check_index1(r, seed=seed)
     return r
+
+
+# ---------------------------------------------------------------------------- SA amendment
+def _all_symbols(ex: Expansion):
+    """All unknown symbols up to order d_j and control symbols up to the needed order."""
+    pairs = [(j, k) for j in range(ex.n) for k in range(int(ex.d[j]) + 1)]
+    X = _gather_pairs(ex, [j for j, _ in pairs], [k for _, k in pairs], None)
+    U = [var.der(k) for var in ex.model.controls
+         for k in range(ex.control_orders.get(var.name, 0) + 1)]
+    return X, (ca.vertcat(*U) if U else ca.SX(0, 1))
+
+
+def _left_null(ex: Expansion, seed: int):
+    """None if Pryce's system Jacobian is nonsingular at a random point; else a canonical basis
+    (rows, reduced echelon form on pivot columns chosen at the first point) of its left null
+    space at two random points (dense; small systems only)."""
+    n = ex.n
+    top = _top_equations(ex)
+    hi = ex.unknown(ex.d, range(n))
+    X, U = _all_symbols(ex)
+    p = ex.model.parameter_symbols
+    f = ca.Function("J", [ex.model.t, X, U, p], [ca.densify(ca.jacobian(top, hi))])
+    rng = np.random.default_rng(seed + 17)
+    bases, piv = [], None
+    for _ in range(4):
+        J = np.asarray(f(rng.uniform(0.1, 1.0), rng.uniform(0.2, 1.2, X.numel()),
+                         rng.uniform(0.2, 1.2, U.numel()), ex.model.parameter_values))
+        if not np.all(np.isfinite(J)):
+            continue
+        Uv, sv, _ = np.linalg.svd(J)
+        tol = 1e-10 * max(sv[0], 1.0)
+        k = int(np.sum(sv <= tol))
+        if k == 0:
+            return None
+        N = Uv[:, n - k :].T  # k x n, rows span the left null space
+        if piv is None:
+            _, _, pv = sla.qr(N, mode="economic", pivoting=True)
+            piv = np.sort(pv[:k])
+        B = N[:, piv]
+        if np.linalg.cond(B) > 1e8:
+            return [None]
+        bases.append(np.linalg.solve(B, N))
+        if len(bases) == 2:
+            break
+    return bases if bases else None
+
+
+def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
+    """:func:`expand`, amended where Pryce's system Jacobian is singular.
+
+    Linear-combination method (Tan, Nedialkov & Pryce, "Symbolic-numeric methods for improving
+    structural analysis of DAEs", 2017): where ``u^T J = 0`` for a *constant* vector ``u``
+    (found numerically at two random points), take ``theta = min c_i`` over ``u_i != 0`` and an
+    equation ``l`` there with ``c_l = theta``, and replace ``F_l`` by
+    ``sum_i u_i F_i^(c_i - theta)``: the leading derivatives cancel, the Sigma-method runs again.
+    Repeated until ``J`` is nonsingular. Non-constant null vectors (and systems with more than
+    400 equations) are left alone; the index-1 check then reports the failure.
+
+    Returns the expansion and a list of plain-language notes on the replaced equations.
+    """
+    import copy as _copy
+
+    from ..model import Equation
+    from .differentiate import time_derivative
+
+    ex = expand(model)
+    notes: list[str] = []
+    work = model
+    for _ in range(max_rounds):
+        if ex.n > _DENSE_LIMIT:
+            break
+        nulls = _left_null(ex, seed)
+        if nulls is None:
+            break
+        if (
+            len(nulls) < 2
+            or any(u is None for u in nulls)
+            or nulls[0].shape != nulls[1].shape
+            or not np.allclose(nulls[0], nulls[1], rtol=1e-8, atol=1e-10)
+        ):
+            break  # not a constant combination: reported by the index-1 check
+        u = nulls[0][0]
+        I = np.nonzero(np.abs(u) > 1e-10)[0]
+        theta = int(ex.c[I].min())
+        l = int(I[np.argmin(ex.c[I])])
+        F = work.residual
+        comb = 0
+        terms = []
+        for i in I:
+            k = int(ex.c[i]) - theta
+            coef = float(np.round(u[i], 12))
+            comb = comb + coef * time_derivative(F[int(i)], work, k)
+            terms.append(f"{coef:+g}*{derivative_name(ex.equation_names[i], k)}")
+        # u^T J = 0 identically: the combination does not depend on the derivatives
+        # x_j^(d_j - theta); remove them (SX keeps cancelled terms like a - a symbolically)
+        lead = [j for j in range(ex.n) if ex.d[j] >= theta]
+        lead_syms = ex.unknown(ex.d - theta, lead)
+        comb = ca.substitute(ca.SX(comb), lead_syms, ca.SX.zeros(lead_syms.shape))
+        names = ex.equation_names
+        new_eqs = [Equation(names[i], F[i]) for i in range(ex.n)]
+        new_eqs[l] = Equation(names[l], ca.SX(comb))
+        notes.append(
+            f"Pryce's system Jacobian is singular (structural analysis fails): equation "
+            f"{names[l]!r} was replaced by the combination {' '.join(terms)}, in which the "
+            "leading derivatives cancel (linear-combination method)"
+        )
+        work = _copy.copy(work)
+        work.equations = new_eqs
+        work._cache = {}
+        ex = expand(work, validate=False)
+        ex.model = model
+    return ex, notes
 
 
 # ---------------------------------------------------------------------------- building blocks

@@ -375,3 +375,15 @@ def test_large_chain_is_fast():
     r = reduce_index(m)
     assert time.perf_counter() - t0 < 2.0
     assert r.nz == 1000 and r.nx == 1200
+
+
+def test_format_reduced_lists_equations_invariants_selection():
+    from daekit.reduction import format_reduced
+
+    text = format_reduced(reduce_index(ex.l2()))
+    assert "input derivatives needed: der(u), der(u,2)" in text
+    assert "0 = d/dt output:" in text
+    text = format_reduced(
+        reduce_index(ex.pendulum_planar(), method="dummy_derivatives", point={"x": 0.2, "y": -1})
+    )
+    assert "dummies: y, der(y)" in text

@@ -9,6 +9,7 @@
 
 from .differentiate import time_derivative
 from .dummy import dummy_derivatives, map_values, reselect, selection_condition
+from .format import format_reduced
 from .reduce import check_index1, reduce_index
 from .stabilize import BaumgarteStiffnessWarning, baumgarte, ggl, time_scale
 
@@ -19,6 +20,7 @@ __all__ = [
     "time_scale",
     "check_index1",
     "dummy_derivatives",
+    "format_reduced",
     "map_values",
     "reduce_index",
     "reselect",

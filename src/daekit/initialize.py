@@ -80,8 +80,11 @@ class InitialValues:
         return np.array([self.values[e] for e in elems])
 
     def __repr__(self) -> str:
-        shown = ", ".join(f"{n}={v:.6g}" for n, v in zip(self.x_names, self.x0))
-        return f"InitialValues(t0={self.t0:g}: {shown}; dof={self.dof}, residual={self.residual:.1e})"
+        shown = ", ".join(f"{n}={v:.6g}" for n, v in zip(self.x_names, self.x0, strict=False))
+        return (
+            f"InitialValues(t0={self.t0:g}: {shown}; dof={self.dof}, "
+            f"residual={self.residual:.1e})"
+        )
 
 
 def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
@@ -102,7 +105,7 @@ def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
         )
     if not np.all(np.isfinite(arr)):
         raise InitializationError(f"{what}: the value of {key!r} is not finite: {val!r}")
-    return [(e, ca.SX(r.variables[e]), float(v)) for e, v in zip(elems, arr)]
+    return [(e, ca.SX(r.variables[e]), float(v)) for e, v in zip(elems, arr, strict=False)]
 
 
 def _fmt(names_vals: list[tuple[str, float]]) -> str:
@@ -392,7 +395,7 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
 
 def _evaluate_variables(r, t0, x0, z0, u0, pv) -> dict[str, float]:
     names = list(r.variables)
-    for nm, i in zip(r.u_names, range(len(r.u_names))):
+    for nm, _i in zip(r.u_names, range(len(r.u_names)), strict=False):
         if nm not in r.variables:
             names.append(nm)
     exprs = []
@@ -408,4 +411,4 @@ def _evaluate_variables(r, t0, x0, z0, u0, pv) -> dict[str, float]:
         vals = np.asarray(f(t0, x0, z0, u0, pv), dtype=float).ravel()
     except RuntimeError as exc:  # pragma: no cover - defensive
         raise DaekitError(f"cannot evaluate the model's variables: {exc}") from None
-    return dict(zip(names, vals.tolist()))
+    return dict(zip(names, vals.tolist(), strict=False))

@@ -110,7 +110,8 @@ class _System:
         )
 
     def _opts(self, extra: Mapping | None = None) -> dict:
-        o = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": 100000}
+        o = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": 100000,
+             "show_eval_warnings": False, "disable_internal_warnings": True}
         o.update(self.options)
         if extra:
             o.update(extra)
@@ -137,17 +138,22 @@ class _System:
         return ca.integrator("daekit_idas", "idas", dae, float(t[0]), [float(v) for v in t[1:]],
                              self._opts())
 
-    def scaled_integrator(self):
-        """Integrator over s in [0, 1] with t = ta + s h; p_full = (p, ta, h). Built once."""
+    def scaled_integrator(self, points: int = 1):
+        """Integrator over s in [0, 1] with t = ta + s h, output at s = k/points, k = 1..points;
+        p_full = (p, ta, h). Built once per ``points``."""
         if self._scaled is None:
+            self._scaled = {}
+        if points not in self._scaled:
             S = ca.MX if self.use_mx else ca.SX
             s = S.sym("s")
             ta = S.sym("ta")
             h = S.sym("h")
             x, z, p, ode, alg = self._exprs(s, lambda q: ta + q * h)
             dae = {"t": s, "x": x, "z": z, "p": ca.vertcat(p, ta, h), "ode": h * ode, "alg": alg}
-            self._scaled = ca.integrator("daekit_idas_step", "idas", dae, 0.0, 1.0, self._opts())
-        return self._scaled
+            grid = [k / points for k in range(1, points + 1)]
+            self._scaled[points] = ca.integrator(f"daekit_idas_step{points}", "idas", dae, 0.0,
+                                                 grid, self._opts())
+        return self._scaled[points]
 
     def solve_z(self, t, x, z, u, p, iters: int = 30) -> np.ndarray:
         """Newton on alg for z at fixed x (consistent algebraic values)."""

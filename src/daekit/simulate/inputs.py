@@ -10,7 +10,7 @@ respect to ``t``); given it as a Python callable, the derivatives must be suppli
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import casadi as ca
 import numpy as np
@@ -295,6 +295,6 @@ def resolve_params(r, params: Mapping | None) -> np.ndarray:
             raise InputError(f"params: {key!r} has {len(elems)} element(s), got {arr.size} values")
         if not np.all(np.isfinite(arr)):
             raise InputError(f"params: {key!r} is not finite ({val!r})")
-        for e, v in zip(elems, arr):
+        for e, v in zip(elems, arr, strict=False):
             pv[index[e]] = v
     return pv

@@ -165,7 +165,7 @@ class Trajectory:
         if not self.invariant_names or self.t.size == 0:
             return {}
         m = np.max(np.abs(self.invariants), axis=0)
-        return {n: float(v) for n, v in zip(self.invariant_names, m)}
+        return {n: float(v) for n, v in zip(self.invariant_names, m, strict=False)}
 
     def at(self, time: float) -> dict[str, float]:
         """Values at the grid point nearest ``time`` (by element name)."""

@@ -1,0 +1,124 @@
+"""Static figures of trajectories (matplotlib): variables over time and the lecture's drift plot.
+
+``traj.plot()`` and ``traj.plot_invariants()`` delegate here. Both return the matplotlib
+``Figure`` (nothing is shown; call ``fig.savefig(...)`` or ``plt.show()``).
+
+Example
+-------
+>>> import numpy as np, matplotlib
+>>> matplotlib.use("Agg")
+>>> from daekit.simulate import Trajectory
+>>> from daekit.plot import plot_invariants
+>>> t = np.linspace(0, 1, 5)
+>>> tr = Trajectory(t, {"x": t}, np.c_[1e-9 * t, 1e-8 * t], ["rod", "d/dt rod"])
+>>> len(plot_invariants(tr).axes)
+2
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+
+import numpy as np
+
+__all__ = ["plot_trajectory", "plot_invariants", "invariant_order"]
+
+_ORDER_RE = re.compile(r"^d(\d*)/dt(\d*)\s+(.*)$")
+
+
+def invariant_order(name: str) -> tuple[int, str]:
+    """``"rod"`` -> ``(0, "rod")``, ``"d/dt rod"`` -> ``(1, "rod")``, ``"d2/dt2 rod"`` -> 2."""
+    m = _ORDER_RE.match(name.strip())
+    if not m:
+        return 0, name
+    k = int(m.group(1) or 1)
+    return k, m.group(3)
+
+
+def _figure(ax, nrows: int = 1, height: float = 3.0):
+    import matplotlib.pyplot as plt
+
+    if ax is not None:
+        axes = list(np.atleast_1d(ax).ravel())
+        return axes[0].figure, axes
+    fig, axs = plt.subplots(nrows, 1, figsize=(7, height * nrows), sharex=True, squeeze=False)
+    return fig, list(axs[:, 0])
+
+
+def plot_trajectory(traj, names: Iterable[str] | str | None = None, ax=None):
+    """Plot variables of a :class:`~daekit.simulate.Trajectory` over time, one panel per name.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    names : str or list of str, optional
+        Original names (``"p"``, ``"p[0]"``, ``"der(p)"``, ``"z"``); by default the variables
+        without derivatives in their name (the positions), at most six.
+    ax : matplotlib Axes or array of Axes, optional
+        Where to draw; all names go to one Axes when a single Axes is given.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    if isinstance(names, str):
+        names = [names]
+    if names is None:
+        names = [n for n in traj.names if not n.startswith("der(")][:6] or traj.names[:6]
+    names = list(names)
+    single = ax is not None and np.ndim(ax) == 0
+    fig, axes = _figure(ax if not single else [ax], 1 if single else max(len(names), 1), 2.2)
+    for k, name in enumerate(names):
+        a = axes[0] if single else axes[k]
+        vals = traj[name]
+        if vals.ndim == 1:
+            a.plot(traj.t, vals, label=name)
+        else:
+            for j in range(vals.shape[1]):
+                a.plot(traj.t, vals[:, j], label=f"{name}[{j}]")
+        if not single:
+            a.set_ylabel(name)
+        if vals.ndim > 1 or single:
+            a.legend(loc="best", fontsize="small")
+        a.grid(True, alpha=0.3)
+    axes[-1 if not single else 0].set_xlabel("t")
+    fig.tight_layout()
+    return fig
+
+
+def plot_invariants(traj, axes=None, floor: float = 1e-17):
+    """The lecture's drift figure: ``|c|`` (position level) and ``|c'|`` (velocity level), and
+    higher levels if present, over time on logarithmic scales, one panel per derivative level.
+
+    Invariants named ``"rod"``, ``"d/dt rod"``, ``"d2/dt2 rod"`` go to levels 0, 1, 2. Values
+    below ``floor`` are drawn at ``floor`` (exact zeros have no logarithm).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    levels: dict[int, list[int]] = {}
+    for j, n in enumerate(traj.invariant_names):
+        levels.setdefault(invariant_order(n)[0], []).append(j)
+    if not levels:
+        fig, axs = _figure(axes, 1)
+        axs[0].text(0.5, 0.5, "no invariants", ha="center", va="center",
+                    transform=axs[0].transAxes)
+        return fig
+    order = sorted(levels)
+    fig, axs = _figure(axes, len(order))
+    title = {0: "|c|", 1: "|c'|", 2: "|c''|"}
+    for a, lvl in zip(axs, order, strict=False):
+        for j in levels[lvl]:
+            vals = np.maximum(np.abs(traj.invariants[:, j]), floor)
+            a.semilogy(traj.t, vals, label=traj.invariant_names[j])
+        a.set_ylabel(title.get(lvl, f"|c^({lvl})|"))
+        a.grid(True, which="both", alpha=0.3)
+        if len(levels[lvl]) <= 8:
+            a.legend(loc="best", fontsize="small")
+    axs[-1].set_xlabel("t")
+    stab = traj.stats.get("stabilization") if traj.stats else None
+    axs[0].set_title(f"constraint drift ({stab or 'no stabilization'})")
+    fig.tight_layout()
+    return fig

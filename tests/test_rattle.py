@@ -252,8 +252,10 @@ def test_lagrangian_pendulum3d_with_inputs():
                          dt=1e-3, inputs={"u": [0.0, 0.0, 9.81]})
     assert np.allclose(tr["p"][-1], [math.cos(2.0), math.sin(2.0), 0.0], atol=1e-5)
     assert np.allclose(tr["z"], 1.0, atol=1e-9)
-    with pytest.raises(SimulationError, match="u"):
-        simulate_rattle(sys3, [0.0, 1.0], init)  # the input is missing
+    tr0 = simulate_rattle(sys3, np.linspace(0.0, 2.0, 21), init, dt=1e-3)  # u not given: 0
+    assert np.max(np.abs(tr0["p"][-1] - p(2.0))) < 1e-4
+    with pytest.raises(SimulationError, match="not an input"):
+        simulate_rattle(sys3, [0.0, 1.0], init, inputs={"w": 0.0})
     with pytest.raises(SimulationError, match="CasADi"):
         simulate_rattle(sys3, [0.0, 1.0], init, inputs={"u": lambda t: [0, 0, float(t)]})
 
@@ -278,3 +280,21 @@ def test_lagrangian_delta_robot_rest_and_fall():
     # viscous friction is not conservative: a clear error
     with pytest.raises(ModelError, match="velocities"):
         simulate_rattle(robot, [0.0, 1.0], home, inputs={"u": 0.0}, params={"b": 0.1})
+
+
+def test_through_simulate_and_initialize():
+    from daekit.examples.mechanisms import lagrangian_pendulum3d
+    from daekit.initialize import initialize
+    from daekit.simulate import simulate
+
+    beta = 0.6
+    p, v, _ = conical(beta)
+    r = lagrangian_pendulum3d().index1()
+    fixed = {f"p[{i}]": p(0.0)[i] for i in range(2)}
+    fixed.update({f"der(p)[{i}]": v(0.0)[i] for i in range(2)})
+    init = initialize(r, guess={"p": p(0.0), "der(p)": v(0.0)}, fixed=fixed)
+    tr = simulate(r, np.linspace(0.0, 2.0, 21), init, method="rattle", dt=1e-3)
+    assert np.max(np.abs(tr["p"][-1] - p(2.0))) < 1e-4
+    assert tr.stats["max_c"] < 1e-10 and tr.stats["max_cdot"] < 1e-10
+    for name in ("z", "der(p,2)[0]", "u[0]", "der(p)[2]"):
+        assert name in tr

@@ -474,8 +474,10 @@ def _trace_callable(key: str, f: Any, t: ca.SX, t_check: Any) -> ca.SX:
     )
 
 
-def _bind_inputs(sysm: ConstrainedMechanics, inputs: Any, t_check: Any = (0.0, 1.0)) -> ca.SX:
-    """The force with the inputs replaced by expressions of time.
+def _bind_inputs(
+    sysm: ConstrainedMechanics, inputs: Any, t_check: Any = (0.0, 1.0)
+) -> tuple[ca.SX, ca.SX]:
+    """The force with the inputs replaced by expressions of time, and those expressions.
 
     ``inputs`` maps names (``"u"``, ``"u[0]"``) to numbers, CasADi SX expressions of one time
     symbol, or Python callables ``f(t)`` built from operations CasADi understands (called once
@@ -488,7 +490,7 @@ def _bind_inputs(sysm: ConstrainedMechanics, inputs: Any, t_check: Any = (0.0, 1
             raise SimulationError(
                 f"RATTLE: inputs {sorted(inputs)} were given but the mechanical system has none"
             )
-        return sysm.force
+        return sysm.force, ca.SX(0, 1)
     inputs = dict(inputs or {})
     vals: list[ca.SX | None] = [None] * nu
     names = sysm.u_names
@@ -521,13 +523,11 @@ def _bind_inputs(sysm: ConstrainedMechanics, inputs: Any, t_check: Any = (0.0, 1
             )
         for k, i in enumerate(elems):
             vals[i] = expr[k]
-    missing = [names[i] for i in range(nu) if vals[i] is None]
-    if missing:
-        raise SimulationError(
-            f"RATTLE: no value for the input(s) {missing}; give them in inputs={{...}} as "
-            "numbers or CasADi expressions of time"
-        )
-    return ca.substitute(sysm.force, sysm.u, ca.vertcat(*vals))
+    for i in range(nu):  # inputs not given are zero (as in daekit.simulate)
+        if vals[i] is None:
+            vals[i] = ca.SX(0)
+    uexpr = ca.vertcat(*vals)
+    return ca.substitute(sysm.force, sysm.u, uexpr), uexpr
 
 
 # ----------------------------------------------------------------------------------------------
@@ -789,7 +789,7 @@ def simulate_rattle(
         Values of the system's inputs ``u`` (in the force) by name: numbers, CasADi SX
         expressions of time, or callables ``f(t)`` that CasADi can trace (called once with a
         symbol: ``lambda t: [0, 0, ca.sin(t)]``). RATTLE runs its loop inside CasADi, so an
-        opaque Python function is refused with a clear error.
+        opaque Python function is refused with a clear error. Inputs not given are zero.
     newton_iter : int
         Newton iterations per step for the multiplier (unrolled; the starting guess is the
         previous multiplier, so 3-4 iterations reach rounding level).
@@ -815,7 +815,7 @@ def simulate_rattle(
         raise SimulationError(
             "RATTLE: the output times t must be finite, increasing and at least two"
         )
-    force = _bind_inputs(sysm, inputs, (tt[0], 0.5 * (tt[0] + tt[-1]), tt[-1]))
+    force, uexpr = _bind_inputs(sysm, inputs, (tt[0], 0.5 * (tt[0] + tt[-1]), tt[-1]))
     spacing = np.diff(tt)
     if dt is None:
         dt = min(float(np.min(spacing)), DEFAULT_DT)
@@ -825,6 +825,7 @@ def simulate_rattle(
     hs = spacing / nsteps
 
     step, helpers = _build_step(sysm, newton_iter, force)
+    helpers["u"] = ca.Function("u", [sysm.t], [uexpr])
     n, m = sysm.n, sysm.m
     q0, v0 = _read_init(sysm, init)
     q0, v0 = _make_consistent(sysm, helpers, q0, v0, init_tol)
@@ -914,6 +915,10 @@ def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt, newton_iter):
         a_name = _der2_name(s)
         if a_name is not None and a_name not in values:
             values[a_name] = acc[i].copy()
+    if sysm.u.numel():
+        uval = np.array(helpers["u"].map(N)(tt.reshape(1, -1))) if N else np.zeros((0, 0))
+        for i, s in enumerate(sysm.u_names):
+            values.setdefault(s, uval[i].copy())
     E = E.ravel()
     inv = np.vstack([c, cd]).T if m else np.zeros((N, 0))
     inv_names = list(sysm.constraint_names) + [f"d/dt {s}" for s in sysm.constraint_names]

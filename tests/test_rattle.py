@@ -298,3 +298,12 @@ def test_through_simulate_and_initialize():
     assert tr.stats["max_c"] < 1e-10 and tr.stats["max_cdot"] < 1e-10
     for name in ("z", "der(p,2)[0]", "u[0]", "der(p)[2]"):
         assert name in tr
+
+
+def test_newton_iterations_raised_when_needed():
+    # from rest at the horizontal with h = 0.1, one Newton iteration is not enough: the chunk
+    # is redone with more, and the constraints still hold to rounding level
+    tr = simulate_rattle(planar_pendulum(), np.linspace(0.0, 20.0, 201),
+                         {"x": 1.0, "y": 0.0}, dt=0.1, newton_iter=1)
+    assert tr.stats["max_c"] < 1e-10 and tr.stats["max_cdot"] < 1e-10
+    assert tr.stats["newton_iterations"] > tr.stats["steps"]

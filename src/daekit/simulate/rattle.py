@@ -763,6 +763,7 @@ def simulate_rattle(
     params: dict | None = None,
     inputs: Any = None,
     newton_iter: int = 4,
+    max_newton_iter: int = 16,
     tol: float = 1e-10,
     init_tol: float = 1e-6,
     progress: bool = False,
@@ -792,7 +793,8 @@ def simulate_rattle(
         opaque Python function is refused with a clear error. Inputs not given are zero.
     newton_iter : int
         Newton iterations per step for the multiplier (unrolled; the starting guess is the
-        previous multiplier, so 3-4 iterations reach rounding level).
+        previous multiplier, so 3-4 iterations reach rounding level). Where that is not enough
+        the chunk is redone with twice as many, up to ``max_newton_iter``.
     tol : float
         Largest accepted ``|c|`` and ``|G q'|`` after a step; above it a
         :class:`~daekit.errors.SimulationError` is raised (with the trajectory so far).
@@ -861,10 +863,16 @@ def simulate_rattle(
             folds[key] = interval.mapaccum(K) if K > 1 else interval
         Xout = folds[key](Xcur, ca.DM(hs[i:j]).T, ca.DM(tt[i:j]).T)
         block = np.array(Xout).T
-        Xs[i + 1 : j + 1] = block
-        Xcur = Xout[:, -1]
         nonfinite = ~np.isfinite(block).all(axis=1)
         bad = nonfinite | (block[:, -2] > tol) | (block[:, -1] > tol)
+        if np.any(bad) and newton_iter < max_newton_iter:
+            # redo this chunk with more Newton iterations before giving up
+            newton_iter = min(2 * newton_iter, max_newton_iter)
+            step, _ = _build_step(sysm, newton_iter, force)
+            folds.clear()
+            continue
+        Xs[i + 1 : j + 1] = block
+        Xcur = Xout[:, -1]
         if np.any(bad):
             first = i + 1 + int(np.argmax(bad))
             if nonfinite[first - i - 1]:

@@ -489,8 +489,11 @@ class OCP:
             stats = {"return_status": "Infeasible_Boundary_Conditions", "success": False,
                      "iter_count": 0}
         else:
+            t_solve = _time.perf_counter()
             res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            t_solve = _time.perf_counter() - t_solve
             stats = dict(solver.stats())
+            stats["t_solve"] = t_solve
         stats["t_build"] = t_build
         stats["t_total"] = _time.perf_counter() - t_start
         stats["n_variables"] = int(V.numel())

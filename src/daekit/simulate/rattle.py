@@ -823,7 +823,11 @@ def simulate_rattle(
         dt = min(float(np.min(spacing)), DEFAULT_DT)
     if not dt > 0:
         raise SimulationError(f"RATTLE: the step dt must be positive, got {dt}")
-    nsteps = np.maximum(1, np.ceil(spacing / dt * (1 - 1e-12))).astype(int)
+    ratio = spacing / dt
+    near = np.round(ratio)
+    # a ratio within rounding of an integer is that integer (grids like arange(n) * 0.1)
+    ratio = np.where(np.abs(ratio - near) <= 1e-8 * np.maximum(1.0, near), near, ratio)
+    nsteps = np.maximum(1, np.ceil(ratio)).astype(int)
     hs = spacing / nsteps
 
     step, helpers = _build_step(sysm, newton_iter, force)
@@ -851,6 +855,9 @@ def simulate_rattle(
         while j < nout and nsteps[j] == k and (j - i + 1) * k <= max(_CHUNK_STEPS, k):
             j += 1
         K = j - i
+        if (k, K) not in folds and K > 1:
+            K = 1 << (K.bit_length() - 1)  # powers of two: few distinct CasADi Functions
+            j = i + K
         key = (k, K)
         if key not in folds:
             Xm = ca.MX.sym("X", X0.size)

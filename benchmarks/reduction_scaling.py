@@ -4,7 +4,8 @@ The model is :func:`daekit.examples.planar_chain` (first-order form, 5N equation
 daekit's :func:`daekit.reduction.reduce_index` (Pryce's offsets, one ``casadi.jtimes`` sweep
 per differentiation level, sparse index-1 check) and CasADi's ``dae_reduce_index`` (implicit
 form ``x_impl``, ``dx_impl``, ``z``, ``alg``) run on the same model, side by side; CasADi is
-skipped for bigger N once one of its runs took longer than the limit (60 s).
+skipped for bigger N once one of its runs took longer than the limit (60 s) or its predicted
+time (cubic growth from the previous size) exceeds the limit.
 
 Run: ``python benchmarks/reduction_scaling.py [N ...]``. Targets: N = 1000 under 3 s for
 daekit; at N = 200 daekit at least 20 times faster than CasADi.
@@ -40,6 +41,7 @@ def casadi_input(m) -> dict:
 def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
     rows = []
     casadi_on = True
+    prev = None
     print(f"{'N':>6} {'eqs':>6} {'daekit [s]':>11} {'casadi [s]':>11} {'speed-up':>9}")
     for N in sizes:
         m = ex.planar_chain(N)
@@ -48,11 +50,14 @@ def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
         t_dk = time.perf_counter() - t0
         assert r.nz == 5 * N and r.nx == 6 * N, r
         t_ca = None
+        if casadi_on and prev is not None and prev[1] * (N / prev[0]) ** 3 > CASADI_LIMIT:
+            casadi_on = False
         if casadi_on:
             dae = casadi_input(m)
             t0 = time.perf_counter()
             ca.dae_reduce_index(dae, {})
             t_ca = time.perf_counter() - t0
+            prev = (N, t_ca)
             if t_ca > CASADI_LIMIT:
                 casadi_on = False
         ratio = f"{t_ca / t_dk:9.1f}" if t_ca is not None else f"{'-':>9}"

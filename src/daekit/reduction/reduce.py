@@ -166,6 +166,8 @@ def _left_null(ex: Expansion, seed: int):
                          rng.uniform(0.2, 1.2, U.numel()), ex.model.parameter_values))
         if not np.all(np.isfinite(J)):
             continue
+        if _lu_nonsingular(sp.csc_matrix(J)):
+            return None
         Uv, sv, _ = np.linalg.svd(J)
         tol = 1e-10 * max(sv[0], 1.0)
         k = int(np.sum(sv <= tol))
@@ -408,23 +410,26 @@ def _to_scipy(M: ca.DM) -> sp.csc_matrix:
     )
 
 
+def _lu_nonsingular(A: sp.csc_matrix) -> bool:
+    """Cheap test: sparse LU with pivots not tiny relative to the largest (no dense SVD)."""
+    try:
+        lu = spla.splu(sp.csc_matrix(A))
+    except RuntimeError:  # exactly singular
+        return False
+    u = np.abs(lu.U.diagonal())
+    return bool(u.size == 0 or u.min() > 1e-10 * max(u.max(), 1.0))
+
+
 def _singular_rows(A: sp.csc_matrix):
     """Rows taking part in a (numerical) rank deficiency of square A, or None if nonsingular.
 
     Small matrices: SVD. Big ones: block triangular form of the pattern, then SVD per block.
     """
     n = A.shape[0]
-    if n == 0:
+    if n == 0 or _lu_nonsingular(A):
         return None
     if n <= _DENSE_LIMIT:
         return _dense_singular_rows(A.toarray(), np.arange(n))
-    try:
-        lu = spla.splu(A.tocsc())
-        u = np.abs(lu.U.diagonal())
-        if u.min() > 1e-12 * max(u.max(), 1.0):
-            return None
-    except RuntimeError:
-        pass
     coo = A.tocoo()
     dm = dulmage_mendelsohn(n, n, coo.row, coo.col)
     if not dm.is_square_nonsingular:

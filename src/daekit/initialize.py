@@ -193,6 +193,13 @@ def initialize(
     dup = {nm for nm in fixed_names if fixed_names.count(nm) > 1}
     if dup:
         raise InitializationError(f"fixed: {sorted(dup)} given more than once")
+    for i, (ni, ei, vi) in enumerate(fixed_items):  # two names for the same quantity
+        for nj, ej, vj in fixed_items[i + 1:]:
+            if ca.is_equal(ei, ej, 2) and abs(vi - vj) > 1e-12 * (1 + abs(vi)):
+                raise InitializationError(
+                    f"initialize: the fixed values {ni} = {vi:g} and {nj} = {vj:g} contradict "
+                    f"each other: in this system both are the same quantity; fix only one"
+                )
 
     alg = on_w(r.alg)
     inv = on_w(r.invariants) if r.invariants.numel() else ca.SX(0, 1)
@@ -252,6 +259,8 @@ def initialize(
                 break
             alpha *= 0.5
         step = np.max(np.abs(wn - wv)) if n else 0.0
+        if not np.all(np.isfinite(hn)) or np.linalg.norm(hn) > 1e3 * max(normh, 1.0):
+            break  # diverging: analyse the best point reached
         wv, hv, J = wn, hn, Jn
         if np.max(np.abs(hv), initial=0.0) <= tol * scale and step <= 1e-9 * (
             1 + np.max(np.abs(wv), initial=0.0)

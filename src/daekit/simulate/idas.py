@@ -131,12 +131,15 @@ class _System:
         ode, alg = self.f(tt(sym), r.x, r.z, r.p, u)
         return r.x, r.z, r.p, ode, alg
 
-    def grid_integrator(self, t: np.ndarray):
+    def grid_integrator(self, t: np.ndarray, extra: Mapping | None = None):
         sym = ca.MX.sym("t") if self.use_mx else self.r.t
         x, z, p, ode, alg = self._exprs(sym, lambda s: s)
         dae = {"t": sym, "x": x, "z": z, "p": p, "ode": ode, "alg": alg}
         return ca.integrator("daekit_idas", "idas", dae, float(t[0]), [float(v) for v in t[1:]],
-                             self._opts())
+                             self._opts(extra))
+
+    def xdot(self, t, x, z, u, p) -> np.ndarray:
+        return np.asarray(self.f(t, x, z, p, u)[0], dtype=float).ravel()
 
     def scaled_integrator(self, points: int = 1):
         """Integrator over s in [0, 1] with t = ta + s h, output at s = k/points, k = 1..points;
@@ -404,19 +407,39 @@ def _make_trajectory(r, tg, X, Z, U, pv, stats) -> Trajectory:
 
 
 def _run_grid(r, system: _System, tg, x0, z0, U, pv) -> Trajectory:
-    F = system.grid_integrator(tg)
-    w0 = time.perf_counter()
-    try:
-        res = F(x0=x0, z0=z0, p=pv)
-    except RuntimeError as exc:
-        _reraise_input_error(system)
-        # find where it failed: redo interval by interval (only on failure)
-        return _run_intervals(r, system, tg, x0, z0, U, pv, None, False, label="simulate",
-                              first_error=exc)
-    wall = time.perf_counter() - w0
-    X = np.column_stack([x0, np.asarray(res["xf"], dtype=float).reshape(r.nx, -1)]).T
-    Z = np.column_stack([z0, np.asarray(res["zf"], dtype=float).reshape(r.nz, -1)]).T
-    return _make_trajectory(r, tg, X, Z, U, pv, _stats_of(F, wall))
+    """One IDAS run over the whole grid (CasADi's defaults, IDACalcIC included). Should it
+    fail, a second attempt starts from xdot0 = ode(x0, z0) without IDACalcIC (the initial values
+    are consistent: z0 was solved from alg), excludes the algebraic unknowns from the error
+    test and starts with a tiny step (fully implicit index-1 models with fast inputs, such as
+    the transistor amplifier, need it); if that fails too, an interval-by-interval run locates
+    the failure and returns the partial trajectory."""
+    attempts: list[dict] = [{}]
+    if "calc_ic" not in system.options and "suppress_algebraic" not in system.options:
+        span = float(tg[-1] - tg[0])
+        attempts.append({"calc_ic": False,
+                         "init_xdot": list(system.xdot(tg[0], x0, z0, U[0], pv)),
+                         "suppress_algebraic": True, "step0": 1e-12 * max(1.0, span)})
+    first_error = None
+    for k, extra in enumerate(attempts):
+        F = system.grid_integrator(tg, extra)
+        w0 = time.perf_counter()
+        try:
+            res = F(x0=x0, z0=z0, p=pv)
+        except RuntimeError as exc:
+            _reraise_input_error(system)
+            first_error = first_error or exc
+            continue
+        wall = time.perf_counter() - w0
+        X = np.column_stack([x0, np.asarray(res["xf"], dtype=float).reshape(r.nx, -1)]).T
+        Z = np.column_stack([z0, np.asarray(res["zf"], dtype=float).reshape(r.nz, -1)]).T
+        stats = _stats_of(F, wall)
+        if k:
+            stats["note"] = (f"first IDAS attempt failed ({_reason(first_error)}); succeeded "
+                             "with the algebraic unknowns excluded from the error test")
+        return _make_trajectory(r, tg, X, Z, U, pv, stats)
+    # locate the failure: interval by interval (only on failure)
+    return _run_intervals(r, system, tg, x0, z0, U, pv, None, False, label="simulate",
+                          first_error=first_error)
 
 
 def _reraise_input_error(system: _System) -> None:

@@ -1,0 +1,257 @@
+"""Simulation: exact and published solutions, drift control, inputs, errors, Trajectory."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import daekit as dk
+from daekit.errors import DaekitError, SimulationError
+from daekit.initialize import initialize
+from daekit.reduced import ReducedDAE
+from daekit.simulate import Trajectory, simulate
+from daekit.simulate.inputs import InputError
+
+reduction = pytest.importorskip("daekit.reduction")
+reduce_index = reduction.reduce_index
+
+# reference-problems.md section 2, case B (theta0 = pi/2, g = 9.81, L = 1)
+X10, Y10 = 0.27508746257611686005, -0.96141920509912506427
+X1, Y1 = -0.98629175113187531936, -0.16501085312554116875
+
+
+def _released_horizontal(r):
+    return initialize(r, guess={"x": 1.0, "y": 0.0}, fixed={"der(x)": 0.0, "der(y)": 0.0})
+
+
+@pytest.fixture(scope="module")
+def planar():
+    return reduce_index(dk.examples.pendulum_planar())
+
+
+def test_pendulum_case_b_exact(planar):
+    traj = simulate(planar, np.linspace(0, 10, 11), _released_horizontal(planar),
+                    rtol=1e-10, atol=1e-10)
+    assert abs(traj["x"][1] - X1) < 1e-8 and abs(traj["y"][1] - Y1) < 1e-8
+    assert abs(traj["x"][-1] - X10) < 1e-7
+    assert abs(traj["y"][-1] - Y10) < 1e-7
+    assert traj.stats["steps"] > 0 and traj.stats["residual_evaluations"] > 0
+
+
+@pytest.fixture(scope="module")
+def drift(planar):
+    t = np.linspace(0, 100, 1001)
+    out = {}
+    for stab in (None, "baumgarte", "projection"):
+        tr = simulate(planar, t, _released_horizontal(planar), rtol=1e-6, atol=1e-6,
+                      stabilization=stab, poles=(-1, -1))
+        out[stab] = np.max(np.abs(tr.invariant("rod")))
+    rdd = reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives",
+                       point={"x": 1.0, "y": 0.0})
+    tr = simulate(rdd, t, _released_horizontal(rdd), rtol=1e-6, atol=1e-6,
+                  stabilization="dummy_derivatives")
+    out["dummy_derivatives"] = np.max(np.abs(tr.invariant("rod")))
+    out["dd_traj"] = tr
+    return out
+
+
+def test_drift_baumgarte_ten_times_below_none(drift):
+    assert drift[None] > 1e-5  # the index-1 form does drift at this tolerance
+    assert drift["baumgarte"] * 10 <= drift[None]
+
+
+def test_drift_projection_and_dummy_derivatives(drift):
+    assert drift["projection"] < 1e-9
+    assert drift["dummy_derivatives"] < 1e-9
+    tr = drift["dd_traj"]
+    assert tr.t[-1] == 100.0  # swung through x = 0 and y = 0 many times without failing
+    assert len(tr.stats["selection_switches"]) > 10
+    assert np.max(np.abs(tr["x"] ** 2 + tr["y"] ** 2 - 1)) < 1e-9
+
+
+def test_chemakzo_published():
+    r = reduce_index(dk.examples.chemakzo())
+    ks = 115.83
+    init = initialize(r, fixed={"y": [0.444, 0.00123, 0, 0.007, 0]},
+                      guess={"y6": ks * 0.444 * 0.007})
+    assert init["y6"] == pytest.approx(ks * 0.444 * 0.007, rel=1e-14)
+    traj = simulate(r, [0.0, 180.0], init, rtol=1e-10, atol=1e-10)
+    ref = np.array([0.1150794920661702, 0.1203831471567715e-2, 0.1611562887407974,
+                    0.3656156421249283e-3, 0.1708010885264404e-1, 0.4873531310307455e-2])
+    got = np.r_[traj["y"][-1], traj["y6"][-1]]
+    _check_published(got, ref)
+
+
+def test_transistor_published():
+    r = reduce_index(dk.examples.transistor_amplifier())
+    init = initialize(r, fixed={"y": [0, 3, 3, 6, 3, 3, 6, 0]})  # consistent: 3 implied
+    assert len(init.redundant) == 3
+    traj = simulate(r, [0.0, 0.2], init, rtol=1e-10, atol=1e-10)
+    ref = np.array([-0.5562145012262709e-2, 0.3006522471903042e1, 0.2849958788608128e1,
+                    0.2926422536206241e1, 0.2704617865010554e1, 0.2761837778393145e1,
+                    0.4770927631616772e1, 0.1236995868091548e1])
+    _check_published(traj["y"][-1], ref)
+
+
+def _check_published(got, ref):
+    small = np.abs(ref) < 1e-6
+    assert np.all(np.abs(got - ref)[small] < 1e-9)
+    rel = np.abs(got - ref)[~small] / np.abs(ref[~small])
+    assert np.all(rel < 1e-6), rel
+
+
+def test_e1_brenan():
+    r = reduce_index(dk.examples.e1())
+    t = np.linspace(0, 5, 51)
+    init = initialize(r, fixed={"y1": 1.0, "y2": 0.0})
+    traj = simulate(r, t, init, rtol=1e-10, atol=1e-10)
+    assert np.max(np.abs(traj["y1"] - (np.exp(-t) + t * np.sin(t)))) < 1e-6
+    assert np.max(np.abs(traj["y2"] - np.sin(t))) < 1e-6
+
+
+def test_e2_jay():
+    r = reduce_index(dk.examples.e2())
+    t = np.linspace(0, 1, 11)
+    init = initialize(r, fixed={"y1": 1.0}, guess={"y2": 1.0, "w": 1.0})
+    traj = simulate(r, t, init, rtol=1e-10, atol=1e-10)
+    assert np.max(np.abs(traj["y1"] - np.exp(t))) < 1e-6
+    assert np.max(np.abs(traj["y2"] - np.exp(-2 * t))) < 1e-6
+    assert np.max(np.abs(traj["w"] - np.exp(2 * t))) < 1e-6
+
+
+def test_e3_arevalo():
+    # index 3 with a fast-growing frequency (2t): the drift of the plain index-1 form costs
+    # accuracy (velocities off by ~3e-6 at 1e-10); projection keeps every component within 1e-6
+    r = reduce_index(dk.examples.e3())
+    t = np.linspace(1, 5, 41)
+    s, c = np.sin(1.0), np.cos(1.0)
+    init = initialize(r, fixed={"x": s, "u": 2 * c}, guess={"y": c, "v": -2 * s})
+    traj = simulate(r, t, init, rtol=1e-10, atol=1e-10, stabilization="projection")
+    exact = {"x": np.sin(t**2), "y": np.cos(t**2), "u": 2 * t * np.cos(t**2),
+             "v": -2 * t * np.sin(t**2), "l": -4 * t**2}
+    for name, val in exact.items():
+        assert np.max(np.abs(traj[name] - val)) < 1e-6, name
+
+
+# ------------------------------------------------------------------ inputs
+
+
+def _l2():
+    m = dk.Model("L2")
+    x1, x2 = m.state("x1"), m.state("x2")
+    z = m.algebraic("z")
+    u = m.control("u")
+    m.equation(m.der(x1) - z, name="a")
+    m.equation(m.der(x2) - x1, name="b")
+    m.equation(x2 - u, name="c")
+    return m
+
+
+def test_input_derivatives_from_expressions():
+    m = _l2()
+    r = reduce_index(m)
+    assert "der(u)" in r.u_names
+    t = np.linspace(0, 3, 31)
+    inputs = {"u": ca.sin(m.t)}
+    init = initialize(r, guess={"x1": 1.0, "x2": 0.0}, inputs=inputs)
+    traj = simulate(r, t, init, inputs=inputs, rtol=1e-10, atol=1e-10)
+    assert np.max(np.abs(traj["x2"] - np.sin(t))) < 1e-7
+    assert np.max(np.abs(traj["x1"] - np.cos(t))) < 1e-7
+    assert np.max(np.abs(traj["z"] - (-np.sin(t)))) < 1e-6
+
+
+def test_callable_where_derivative_needed_is_an_error():
+    r = reduce_index(_l2())
+    with pytest.raises(InputError, match="der\\(u\\)"):
+        simulate(r, [0, 1], np.zeros(r.nx), inputs={"u": np.sin})
+
+
+def test_callable_input_matches_expression():
+    from test_initialize import hand_pendulum3d
+
+    r = hand_pendulum3d()
+    init = initialize(r, fixed={"p": [0.0, 0.6, -0.8], "v": [1.0, 0.0, 0.0]})
+    t = np.linspace(0, 2, 21)
+    tr1 = simulate(r, t, init, inputs={"u": lambda s: [0.0, 0.0, np.sin(s)]})
+    tr2 = simulate(r, t, init, inputs={"u": ca.vertcat(0, 0, ca.sin(r.t))})
+    assert np.max(np.abs(tr1["p"] - tr2["p"])) < 1e-6
+    assert tr1["p"].shape == (21, 3) and tr1["u[2]"][5] == pytest.approx(np.sin(t[5]))
+
+
+def test_nan_input_is_named():
+    from test_initialize import hand_pendulum3d
+
+    r = hand_pendulum3d()
+    init = initialize(r, fixed={"p": [0.0, 0.0, -1.0], "v": [0.0, 0.0, 0.0]})
+    with pytest.raises(InputError, match="'u'"):
+        simulate(r, np.linspace(0, 1, 11), init,
+                 inputs={"u": lambda s: [0.0, 0.0, np.nan if s > 0.5 else 0.0]})
+    with pytest.raises(InputError, match="'u\\[2\\]'"):
+        simulate(r, np.linspace(0, 1, 11), init, inputs={"u[2]": ca.log(r.t - 0.5)})
+
+
+# ------------------------------------------------------------------ failures
+
+
+def _losing_rank():
+    """x' = 1, 0 = z^2 + x^2 - 1: d alg/dz = 2z vanishes at t = 1, no solution after."""
+    t, x, z = ca.SX.sym("t"), ca.SX.sym("x"), ca.SX.sym("z")
+    return ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), ca.SX(1), z**2 + x**2 - 1, ca.SX(0, 1),
+                      [], ["x"], ["z"], [], [], np.zeros(0), {"x": x, "z": z})
+
+
+def test_integrator_failure_carries_partial_trajectory():
+    r = _losing_rank()
+    init = initialize(r, fixed={"x": 0.0}, guess={"z": 1.0})
+    with pytest.raises(SimulationError) as exc:
+        simulate(r, np.linspace(0, 2, 21), init)
+    err = exc.value
+    assert 0.9 <= err.t <= 1.1
+    part = err.trajectory
+    assert isinstance(part, Trajectory) and 5 < len(part) <= 11
+    assert np.allclose(part["z"], np.sqrt(1 - part.t**2), atol=1e-6)
+    assert "t = " in str(err)
+
+
+def test_bad_arguments():
+    r = _losing_rank()
+    with pytest.raises(DaekitError, match="increasing"):
+        simulate(r, [0, 1, 0.5], [0.0])
+    with pytest.raises(DaekitError, match="stabilization"):
+        simulate(r, [0, 0.5], [0.0], stabilization="magic")
+    with pytest.raises(DaekitError, match="dummy_derivatives"):
+        simulate(r, [0, 0.5], [0.0], stabilization="dummy_derivatives")
+
+
+# ------------------------------------------------------------------ Trajectory and figures
+
+
+def test_trajectory_access_and_figures(tmp_path, capsys):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from test_initialize import hand_pendulum3d
+
+    r = hand_pendulum3d()
+    init = initialize(r, fixed={"p": [0.0, 0.6, -0.8], "v": [1.0, 0.0, 0.0]})
+    traj = simulate(r, np.linspace(0, 1, 11), init, progress=True)
+    assert "100%" in capsys.readouterr().err
+    assert traj["p"].shape == (11, 3) and traj["p[1]"].shape == (11,)
+    assert traj["der(p)"].shape == (11, 3) and traj["z"].shape == (11,)
+    assert traj.invariants.shape == (11, 2) and traj.invariant_names == ["rod", "d/dt rod"]
+    assert np.max(np.abs(traj.invariants)) < 1e-6
+    with pytest.raises(KeyError):
+        traj["q"]
+    fig = traj.plot(["p", "z"])
+    assert len(fig.axes) == 2
+    fig2 = traj.plot_invariants()
+    assert len(fig2.axes) == 2 and fig2.axes[0].get_yscale() == "log"
+    fig2.savefig(tmp_path / "drift.png")
+    try:
+        import pandas  # noqa: F401
+    except ImportError:
+        with pytest.raises(ImportError, match="pandas"):
+            traj.to_pandas()
+    else:
+        assert traj.to_pandas().shape[0] == 11

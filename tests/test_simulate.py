@@ -241,6 +241,10 @@ def test_trajectory_access_and_figures(tmp_path, capsys):
     assert traj["der(p)"].shape == (11, 3) and traj["z"].shape == (11,)
     assert traj.invariants.shape == (11, 2) and traj.invariant_names == ["rod", "d/dt rod"]
     assert np.max(np.abs(traj.invariants)) < 1e-6
+    P, V = traj["p"], traj["v"]
+    assert np.allclose(traj.invariant("rod"), 0.5 * (np.sum(P * P, axis=1) - 1), atol=1e-15)
+    assert np.allclose(traj.invariant("d/dt rod"), np.sum(P * V, axis=1), atol=1e-15)
+    assert np.allclose(traj["der(p)"], V)
     with pytest.raises(KeyError):
         traj["q"]
     fig = traj.plot(["p", "z"])

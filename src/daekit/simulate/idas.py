@@ -13,6 +13,7 @@ import math
 import re
 import sys
 import time
+import weakref
 from collections.abc import Mapping
 
 import casadi as ca
@@ -62,7 +63,11 @@ def _reason(exc: Exception) -> str:
 
 
 class _Evaluator:
-    """Original variables and invariants of a ReducedDAE at many points (a mapped Function)."""
+    """Original variables and invariants of a ReducedDAE at many points.
+
+    Variables that are plain elements of ``x``, ``z`` or ``u`` are read off the arrays; only the
+    others (and the invariants) go through one mapped CasADi Function.
+    """
 
     def __init__(self, r) -> None:
         names = list(r.variables)
@@ -72,23 +77,124 @@ class _Evaluator:
                 names.append(nm)
                 exprs.append(r.u[i])
         self.names = names
+        where: dict[int, tuple[str, int]] = {}
+        for key, vec in (("x", r.x), ("z", r.z), ("u", r.u)):
+            for i in range(vec.numel()):
+                where[vec[i].element_hash()] = (key, i)
+        self.direct: dict[str, tuple[str, int]] = {}
+        self.const: dict[str, float] = {}
+        rest_names, rest = [], []
+        for n, e in zip(names, exprs, strict=True):
+            if e.numel() == 1 and e.is_symbolic() and e.element_hash() in where:
+                self.direct[n] = where[e.element_hash()]
+            elif e.numel() == 1 and e.is_constant():
+                self.const[n] = float(ca.DM(e))
+            else:
+                rest_names.append(n)
+                rest.append(e)
+        self.rest_names = rest_names
         inv = r.invariants if r.invariants.numel() else ca.SX(0, 1)
-        allv = ca.vertcat(*exprs) if exprs else ca.SX(0, 1)
+        allv = ca.vertcat(*rest) if rest else ca.SX(0, 1)
         self.nv = int(allv.numel())
         self.ninv = int(inv.numel())
         self.fun = ca.Function("evaluate", [r.t, r.x, r.z, r.u, r.p], [allv, inv])
+        self._maps: dict[int, ca.Function] = {}
 
     def __call__(self, t, X, Z, U, p):
         """t (N,), X (N, nx), Z (N, nz), U (N, nu) -> (values dict, invariants (N, ninv))."""
         n = t.size
         if n == 0:
             return {k: np.zeros(0) for k in self.names}, np.zeros((0, self.ninv))
-        fm = self.fun.map(n)
-        P = np.repeat(np.asarray(p, dtype=float).reshape(-1, 1), n, axis=1)
-        V, I = fm(t.reshape(1, -1), X.T, Z.T, U.T, P)
-        V = np.asarray(V, dtype=float).reshape(self.nv, n)
-        I = np.asarray(I, dtype=float).reshape(self.ninv, n)
-        return {k: V[i] for i, k in enumerate(self.names)}, I.T
+        arrays = {"x": X, "z": Z, "u": U}
+        if self.nv or self.ninv:
+            if n not in self._maps:
+                if len(self._maps) > 4:
+                    self._maps.clear()
+                self._maps[n] = self.fun.map(n)
+            fm = self._maps[n]
+            P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+            ni = fm.name_in()
+            out = _fast_call(fm, {ni[0]: t, ni[1]: X, ni[2]: Z, ni[3]: U, ni[4]: P},
+                             {fm.name_out(0): (n, self.nv), fm.name_out(1): (n, self.ninv)})
+            V = out[fm.name_out(0)].T
+            I = out[fm.name_out(1)].T
+        else:
+            V, I = np.zeros((0, n)), np.zeros((0, n))
+        rest = {k: V[i] for i, k in enumerate(self.rest_names)}
+        out = {}
+        for k in self.names:
+            if k in self.direct:
+                a, i = self.direct[k]
+                out[k] = arrays[a][:, i]
+            elif k in self.const:
+                out[k] = np.full(n, self.const[k])
+            else:
+                out[k] = rest[k]
+        return out, I.T
+
+
+def _fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
+               want_stats: bool = False):
+    """Call a CasADi Function writing straight into NumPy arrays (``Function.buffer``): no
+    DM round trip. Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's
+    column-major ``(size, points)``; ``outs`` maps output names to such shapes. Returns
+    ``{name: array}``; raises RuntimeError like a normal call."""
+    buf, ev = F.buffer()
+    keep = []
+    for i, name in enumerate(F.name_in()):
+        a = args.get(name)
+        # arrays are (points, size) row-major = CasADi's (size, points) column-major
+        a = np.zeros(F.nnz_in(i)) if a is None else np.ascontiguousarray(a, dtype=float).ravel()
+        if a.size != F.nnz_in(i):
+            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
+        keep.append(a)
+        buf.set_arg(i, memoryview(a))
+    res = {}
+    for i, name in enumerate(F.name_out()):
+        shape = outs.get(name)
+        r = np.zeros(shape if shape is not None else F.nnz_out(i))
+        if r.size != F.nnz_out(i):
+            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
+        keep.append(r)
+        buf.set_res(i, memoryview(r))
+        if shape is not None:
+            res[name] = r
+    ev()
+    if want_stats:
+        try:
+            res["_stats"] = buf.stats()
+        except Exception:  # noqa: BLE001
+            res["_stats"] = {}
+    return res
+
+
+_CACHE: dict[tuple, tuple] = {}
+_CACHE_SIZE = 16
+
+
+def _fingerprint(r) -> tuple:
+    """Identity of a ReducedDAE's equations (a copy with replaced equations differs)."""
+    return (id(r), id(r.ode), id(r.alg), id(r.invariants), id(r.variables), id(r.x), id(r.z))
+
+
+def _cached_system(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> _System:
+    """The _System (functions, integrators, evaluator) of ``r`` for these inputs and settings,
+    reused across calls of :func:`simulate` on the same system: the integrator is built once."""
+    if sig.has_callables:
+        return _System(r, sig, rtol, atol, options)
+    try:
+        key = (_fingerprint(r), str(sig.expr), float(rtol), float(atol),
+               repr(sorted(options.items())))
+    except Exception:  # noqa: BLE001 - unprintable option: no caching
+        return _System(r, sig, rtol, atol, options)
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0]() is r:
+        return hit[1]
+    sysm = _System(r, sig, rtol, atol, options)
+    if len(_CACHE) >= _CACHE_SIZE:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = (weakref.ref(r), sysm)
+    return sysm
 
 
 class _System:
@@ -105,6 +211,8 @@ class _System:
         self.use_mx = sig.has_callables
         self.ufun = sig.mx_function() if self.use_mx else None
         self._scaled = None
+        self._grid: dict = {}
+        self._evaluator = None
         self.alg_fun = ca.Function(
             "alg", [r.t, r.x, r.z, r.u, r.p], [r.alg, ca.jacobian(r.alg, r.z)]
         )
@@ -132,11 +240,22 @@ class _System:
         return r.x, r.z, r.p, ode, alg
 
     def grid_integrator(self, t: np.ndarray, extra: Mapping | None = None):
-        sym = ca.MX.sym("t") if self.use_mx else self.r.t
-        x, z, p, ode, alg = self._exprs(sym, lambda s: s)
-        dae = {"t": sym, "x": x, "z": z, "p": p, "ode": ode, "alg": alg}
-        return ca.integrator("daekit_idas", "idas", dae, float(t[0]), [float(v) for v in t[1:]],
-                             self._opts(extra))
+        key = (np.asarray(t, dtype=float).tobytes(), repr(sorted((extra or {}).items())))
+        if key not in self._grid:
+            sym = ca.MX.sym("t") if self.use_mx else self.r.t
+            x, z, p, ode, alg = self._exprs(sym, lambda s: s)
+            dae = {"t": sym, "x": x, "z": z, "p": p, "ode": ode, "alg": alg}
+            if len(self._grid) >= 4:
+                self._grid.pop(next(iter(self._grid)))
+            self._grid[key] = ca.integrator("daekit_idas", "idas", dae, float(t[0]),
+                                            [float(v) for v in t[1:]], self._opts(extra))
+        return self._grid[key]
+
+    @property
+    def evaluator(self) -> _Evaluator:
+        if self._evaluator is None:
+            self._evaluator = _Evaluator(self.r)
+        return self._evaluator
 
     def xdot(self, t, x, z, u, p) -> np.ndarray:
         return np.asarray(self.f(t, x, z, p, u)[0], dtype=float).ravel()
@@ -175,11 +294,13 @@ class _System:
         return z
 
 
-def _stats_of(F, wall: float) -> dict:
-    try:
-        s = F.stats()
-    except Exception:  # noqa: BLE001
-        s = {}
+def _stats_of(F, wall: float, raw: dict | None = None) -> dict:
+    s = raw
+    if s is None:
+        try:
+            s = F.stats()
+        except Exception:  # noqa: BLE001
+            s = {}
     return {
         "steps": int(s.get("nsteps", 0)),
         "residual_evaluations": int(s.get("nfevals", 0)),
@@ -379,7 +500,7 @@ def simulate(
     pv = resolve_params(r_int, params)
     sig = InputSignal(r_int, inputs)
     U = sig.values(tg)  # NaN check on the grid (names the input)
-    system = _System(r_int, sig, rtol, atol, options)
+    system = _cached_system(r_int, sig, rtol, atol, options)
     x0, z0 = _initial_state(r_int, init, float(tg[0]), inputs, params, sig, pv, system)
     if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z0))):
         raise InputError("simulate: the initial values contain NaN or infinity")
@@ -400,8 +521,8 @@ def simulate(
     return traj
 
 
-def _make_trajectory(r, tg, X, Z, U, pv, stats) -> Trajectory:
-    ev = _Evaluator(r)
+def _make_trajectory(r, tg, X, Z, U, pv, stats, evaluator=None) -> Trajectory:
+    ev = evaluator or _Evaluator(r)
     vals, inv = ev(tg, X, Z, U, pv)
     return Trajectory(tg, vals, inv, list(r.invariant_names), stats)
 
@@ -416,27 +537,39 @@ def _run_grid(r, system: _System, tg, x0, z0, U, pv) -> Trajectory:
     attempts: list[dict] = [{}]
     if "calc_ic" not in system.options and "suppress_algebraic" not in system.options:
         span = float(tg[-1] - tg[0])
-        attempts.append({"calc_ic": False,
-                         "init_xdot": list(system.xdot(tg[0], x0, z0, U[0], pv)),
+        attempts.append({"calc_ic": False, "init_xdot": None,
                          "suppress_algebraic": True, "step0": 1e-12 * max(1.0, span)})
     first_error = None
     for k, extra in enumerate(attempts):
+        if "init_xdot" in extra and extra["init_xdot"] is None:
+            extra = {**extra, "init_xdot": list(system.xdot(tg[0], x0, z0, U[0], pv))}
         F = system.grid_integrator(tg, extra)
         w0 = time.perf_counter()
+        n = tg.size
+        X = np.empty((n, r.nx))
+        Z = np.empty((n, r.nz))
+        X[0], Z[0] = x0, z0
         try:
-            res = F(x0=x0, z0=z0, p=pv)
+            if not system.use_mx:
+                res = _fast_call(F, {"x0": x0, "z0": z0, "p": pv},
+                                 {"xf": (n - 1, r.nx), "zf": (n - 1, r.nz)}, want_stats=True)
+                raw_stats = res["_stats"]
+                X[1:], Z[1:] = res["xf"], res["zf"]
+            else:
+                res = F(x0=x0, z0=z0, p=pv)
+                raw_stats = None
+                X[1:] = np.asarray(res["xf"], dtype=float).reshape(r.nx, -1).T
+                Z[1:] = np.asarray(res["zf"], dtype=float).reshape(r.nz, -1).T
         except RuntimeError as exc:
             _reraise_input_error(system)
             first_error = first_error or exc
             continue
         wall = time.perf_counter() - w0
-        X = np.column_stack([x0, np.asarray(res["xf"], dtype=float).reshape(r.nx, -1)]).T
-        Z = np.column_stack([z0, np.asarray(res["zf"], dtype=float).reshape(r.nz, -1)]).T
-        stats = _stats_of(F, wall)
+        stats = _stats_of(F, wall, raw_stats)
         if k:
             stats["note"] = (f"first IDAS attempt failed ({_reason(first_error)}); succeeded "
                              "with the algebraic unknowns excluded from the error test")
-        return _make_trajectory(r, tg, X, Z, U, pv, stats)
+        return _make_trajectory(r, tg, X, Z, U, pv, stats, system.evaluator)
     # locate the failure: interval by interval (only on failure)
     return _run_intervals(r, system, tg, x0, z0, U, pv, None, False, label="simulate",
                           first_error=first_error)
@@ -509,4 +642,4 @@ def _run_intervals(r, system: _System, tg, x0, z0, U, pv, proj, progress, label=
         stats["max_projection_correction"] = max_corr
     if first_error is not None:  # the grid run failed but the interval-wise run did not
         stats["note"] = f"one-run IDAS failed ({_reason(first_error)}); solved interval-wise"
-    return _make_trajectory(r, tg, X, Z, U, pv, stats)
+    return _make_trajectory(r, tg, X, Z, U, pv, stats, system.evaluator)

@@ -212,9 +212,9 @@ class InputSignal:
         if not self.has_callables:
             u = np.asarray(self._fexpr.map(ts.size)(ts, np.zeros((0, ts.size))), dtype=float)
             u = u.reshape(self.nu, ts.size).T
-            for k in range(ts.size):
-                if not np.all(np.isfinite(u[k])):
-                    self.check_finite(u[k], ts[k])
+            if not np.isfinite(u).all():
+                k = int(np.argmin(np.isfinite(u).all(axis=1)))
+                self.check_finite(u[k], ts[k])
             return u
         return np.vstack([self.value(tk) for tk in ts])
 

@@ -150,7 +150,7 @@ def initialize(
     -------
     >>> import casadi as ca, numpy as np
     >>> from daekit.reduced import ReducedDAE
-    >>> from daekit import initialize
+    >>> from daekit.initialize import initialize
     >>> t = ca.SX.sym("t"); p = ca.SX.sym("p", 2); v = ca.SX.sym("v", 2); T = ca.SX.sym("T")
     >>> acc = T * p - ca.vertcat(0, 9.81)          # planar pendulum, index-1 form
     >>> alg = ca.dot(p, acc) + ca.dot(v, v)          # second derivative of the rod constraint

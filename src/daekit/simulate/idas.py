@@ -455,7 +455,8 @@ def simulate(
     -------
     >>> import casadi as ca, numpy as np
     >>> from daekit.reduced import ReducedDAE
-    >>> from daekit import initialize, simulate
+    >>> from daekit.initialize import initialize
+    >>> from daekit.simulate import simulate
     >>> t = ca.SX.sym("t"); x = ca.SX.sym("x"); z = ca.SX.sym("z")
     >>> r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), -z, z - x, ca.SX(0, 1), [], ["x"],
     ...     ["z"], [], [], np.zeros(0), {"x": x, "z": z, "der(x)": -z})

@@ -10,7 +10,7 @@ Example
 >>> from daekit.simulate import Trajectory
 >>> t = np.linspace(0, 1, 3)
 >>> tr = Trajectory(t, {"p[0]": t, "p[1]": 2 * t, "z": -t})
->>> tr["p"].shape, tr["p[1]"][-1], tr["z"][0]
+>>> tr["p"].shape, float(tr["p[1]"][-1]), float(tr["z"][0])
 ((3, 2), 2.0, -0.0)
 """
 

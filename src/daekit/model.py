@@ -303,8 +303,10 @@ class Model:
 
     @property
     def unknowns(self) -> list[tuple[Variable, int]]:
-        """Scalar unknowns (variable, element index) in declaration order."""
-        return [(v, i) for v in self.unknown_variables for i in range(v.size)]
+        """Scalar unknowns (variable, element index) in declaration order (cached; do not mutate)."""
+        if "unknowns" not in self._cache:
+            self._cache["unknowns"] = [(v, i) for v in self.unknown_variables for i in range(v.size)]
+        return self._cache["unknowns"]
 
     @property
     def unknown_names(self) -> list[str]:
@@ -333,6 +335,15 @@ class Model:
         """SX symbol of derivative ``order`` of scalar unknown ``j``."""
         var, i = self.unknowns[j]
         return var.der(order)[i]
+
+    def symbols(self, js, order: int = 0) -> ca.SX:
+        """SX column of derivative ``order`` of the scalar unknowns ``js`` (vectorized)."""
+        if "elements" not in self._cache:
+            self._cache["elements"] = {}
+        cache = self._cache["elements"]
+        if order not in cache:
+            cache[order] = ca.vertcat(*[v.der(order) for v in self.unknown_variables])
+        return cache[order][[int(j) for j in js]]
 
     def lookup(self, sym: ca.SX) -> tuple[Variable, int, int] | None:
         """(variable, element, order) of a scalar symbol of this model, or None."""
@@ -427,7 +438,7 @@ class Model:
         highest = np.full(inc.n_unknowns, -1, dtype=np.int64)
         np.maximum.at(highest, inc.cols, inc.vals)
         names = self.unknown_names
-        for j, (var, i) in enumerate(self.unknowns):
+        for j, (var, _i) in enumerate(self.unknowns):
             if var.kind == "state" and highest[j] < 1:
                 raise ModelError(
                     f"model {self.name!r}: state {names[j]!r} is declared with m.state but its "

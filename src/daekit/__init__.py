@@ -9,7 +9,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 3
 """
 
-from . import examples, structure
+from . import examples, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
 from .errors import (
     DaekitError,
@@ -20,12 +20,45 @@ from .errors import (
     SimulationError,
     StructuralError,
 )
+from .initialize import InitialValues, initialize
+from .mechanics import LagrangianSystem, lagrangian
 from .model import Model
+from .ocp import OCP, Free, OCPSolution
+from .reduced import ReducedDAE
+from .reduction import (
+    BaumgarteStiffnessWarning,
+    baumgarte,
+    format_reduced,
+    ggl,
+    reduce_index,
+    reselect,
+    selection_condition,
+)
+from .simulate import InputError, Trajectory, simulate
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "OCP",
     "Analysis",
+    "BaumgarteStiffnessWarning",
+    "Free",
+    "InitialValues",
+    "InputError",
+    "LagrangianSystem",
+    "OCPSolution",
+    "ReducedDAE",
+    "Trajectory",
+    "baumgarte",
+    "format_reduced",
+    "ggl",
+    "initialize",
+    "lagrangian",
+    "mechanics",
+    "reduce_index",
+    "reselect",
+    "selection_condition",
+    "simulate",
     "DaekitError",
     "EasyTest",
     "InitializationError",

@@ -491,12 +491,11 @@ def _short(names: list[str], limit: int = 12) -> str:
 
 def _nonfinite_constants(expr: ca.SX) -> list[float]:
     """Non-finite constants inside an SX expression (walking CasADi's instruction list)."""
-    f = ca.Function("f", ca.symvar(expr), [expr]) if expr.numel() else None
-    if f is None:
-        return []
-    if not ca.symvar(expr):
+    syms = ca.symvar(expr)
+    if not syms:
         vals = np.asarray(ca.DM(ca.evalf(expr))).ravel()
         return [float(v) for v in vals if not math.isfinite(v)]
+    f = ca.Function("constants", [ca.vertcat(*syms)], [expr])
     out = []
     for k in range(f.n_instructions()):
         if f.instruction_id(k) == ca.OP_CONST:

@@ -45,9 +45,21 @@ from .lecture import (
     l6,
     pendulum3d,
 )
+from .mechanisms import (
+    DELTA_ROBOT_DATA,
+    lagrangian_delta_robot,
+    lagrangian_delta_robot_home,
+    lagrangian_pendulum3d,
+    lagrangian_planar_chain,
+)
 from .pendula import chained_pendula, pendulum_planar, planar_chain
 
 __all__ = [
+    "DELTA_ROBOT_DATA",
+    "lagrangian_delta_robot",
+    "lagrangian_delta_robot_home",
+    "lagrangian_pendulum3d",
+    "lagrangian_planar_chain",
     "CHEMAKZO_DATA",
     "DELTA_GAMMA",
     "TRANSISTOR_DATA",

@@ -1,0 +1,229 @@
+"""Optimal control examples on index-3 mechanisms, each with a figure.
+
+- :func:`crane_ocp`: an overhead crane (cart on a rail, load on a cable of length ``L`` in
+  Cartesian coordinates, index 3) moved a distance in minimum time with a bounded force.
+- :func:`delta_robot_ocp`: a delta robot pick-and-place minimizing the integral of the squared
+  motor torques.
+- :func:`pendulum3d_periodic_ocp`: a periodic orbit of the 3D pendulum with full periodicity
+  requested, the case where boundary conditions are redundant with the invariants.
+
+Each ``*_ocp`` function returns the :class:`daekit.ocp.OCP` (call ``.solve()``); each
+``*_figure(sol, path)`` saves a figure of a solution. :func:`run_all` does everything.
+
+>>> ocp = crane_ocp(intervals=20)            # doctest: +SKIP
+>>> sol = ocp.solve(); sol.success, sol.T     # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..model import Model
+
+__all__ = [
+    "crane",
+    "crane_ocp",
+    "crane_figure",
+    "delta_robot_ocp",
+    "delta_robot_figure",
+    "pendulum3d_periodic_ocp",
+    "pendulum3d_periodic_figure",
+    "run_all",
+]
+
+
+def crane(M: float = 1.0, m: float = 0.5, L: float = 1.0, g: float = 9.81) -> Model:
+    """An overhead crane: a cart at ``s`` on a horizontal rail and a load at ``(x, y)`` hanging on
+    a cable of length ``L`` (Cartesian coordinates, the cable as a constraint).
+
+    ``M s'' = F + 2 lam (x - s)``, ``m x'' = -2 lam (x - s)``, ``m y'' = -m g - 2 lam y``,
+    ``0 = (x - s)^2 + y^2 - L^2`` (``cable``); control ``F`` (force on the cart), algebraic
+    ``lam`` (cable force multiplier). Differential index 3, DOF 4.
+
+    >>> crane().equation_names
+    ['cart', 'load_x', 'load_y', 'cable']
+    """
+    mod = Model("crane")
+    s = mod.state("s")
+    x = mod.state("x")
+    y = mod.state("y")
+    lam = mod.algebraic("lam")
+    F = mod.control("F")
+    Mp = mod.parameter("M", M)
+    mp = mod.parameter("m", m)
+    Lp = mod.parameter("L", L)
+    gp = mod.parameter("g", g)
+    mod.equation(Mp * mod.der(s, 2) - (F + 2 * lam * (x - s)), name="cart")
+    mod.equation(mp * mod.der(x, 2) + 2 * lam * (x - s), name="load_x")
+    mod.equation(mp * mod.der(y, 2) + mp * gp + 2 * lam * y, name="load_y")
+    mod.equation((x - s) ** 2 + y**2 - Lp**2, name="cable")
+    return mod
+
+
+def crane_ocp(distance: float = 2.0, F_max: float = 5.0, intervals: int = 40, degree: int = 3,
+              regularization: float = 1e-3):
+    """Move the crane ``distance`` in minimum time, ``|F| <= F_max``, from rest to rest.
+
+    Objective ``T + regularization * int F^2 dt`` (the small regularization makes the
+    bang-bang optimum unique numerically). The full states at both ends are given (6 + 6
+    conditions); on the 4-dimensional manifold of the cable constraint only 4 + 4 are
+    independent, and the OCP keeps those (see ``sol.report``).
+    """
+    from ..ocp import OCP, Free
+
+    mod = crane()
+    F = mod.variables["F"].sym
+    ocp = OCP(mod, t_final=Free(0.5, 10.0, 3.0), intervals=intervals, degree=degree)
+    ocp.minimize(integral=regularization * F**2, final=mod.t)
+    ocp.bound("F", -F_max, F_max)
+    rest = {"der(s)": 0.0, "der(x)": 0.0, "der(y)": 0.0}
+    ocp.initial({"s": 0.0, "x": 0.0, "y": -1.0, **rest})
+    ocp.final({"s": distance, "x": distance, "y": -1.0, **rest})
+    return ocp
+
+
+def crane_figure(sol, path: str) -> None:
+    """Cart and load positions, swing angle and force of a :func:`crane_ocp` solution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    t = sol.t
+    ax[0].plot(t, sol["s"], label="cart s")
+    ax[0].plot(t, sol["x"], "--", label="load x")
+    ax[0].set_xlabel("t [s]")
+    ax[0].set_ylabel("position [m]")
+    ax[0].legend()
+    ang = np.degrees(np.arctan2(sol["x"] - sol["s"], -sol["y"]))
+    ax[1].plot(t, ang)
+    ax[1].set_xlabel("t [s]")
+    ax[1].set_ylabel("cable angle [deg]")
+    ax[2].step(t, sol["F"], where="pre")
+    ax[2].set_xlabel("t [s]")
+    ax[2].set_ylabel("force F [N]")
+    fig.suptitle(f"Overhead crane, minimum time: T = {sol.T:.4f} s (index 3, Cartesian)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def delta_robot_ocp(alpha_start=(0.3, 0.3, 0.3), alpha_end=(0.7, 0.1, 0.45), t_final: float = 0.8,
+                    intervals: int = 30, degree: int = 3):
+    """Pick-and-place with the delta robot (:func:`daekit.examples.delta_robot`): from rest at the
+    configuration with arm angles ``alpha_start`` to rest at ``alpha_end`` in ``t_final``,
+    minimizing ``int |u|^2 dt`` (squared motor torques). Both end configurations are consistent
+    (:func:`daekit.examples.delta_robot_home`); all 12 states are given at each end, of which
+    only 6 are independent on the constraint manifold: the OCP keeps an independent subset.
+    """
+    from ..ocp import OCP
+    from .lecture import delta_robot, delta_robot_home
+
+    mod = delta_robot()
+    u = mod.variables["u"].sym
+    a = delta_robot_home(alpha_start)
+    b = delta_robot_home(alpha_end)
+    ocp = OCP(mod, t_final=t_final, intervals=intervals, degree=degree)
+    ocp.minimize(integral=ca.sumsqr(u))
+    keys = ("alpha", "omega", "p", "v")
+    ocp.initial({k: a[k] for k in keys})
+    ocp.final({k: b[k] for k in keys})
+    ocp.set_guess({"u": a["u"]})
+    return ocp
+
+
+def delta_robot_figure(sol, path: str) -> None:
+    """Arm angles, torques and the platform path of a :func:`delta_robot_ocp` solution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(13, 3.8))
+    ax1 = fig.add_subplot(1, 3, 1)
+    ax1.plot(sol.t, sol["alpha"])
+    ax1.set_xlabel("t [s]")
+    ax1.set_ylabel("arm angles [rad]")
+    ax2 = fig.add_subplot(1, 3, 2)
+    ax2.step(sol.t, sol["u"], where="pre")
+    ax2.set_xlabel("t [s]")
+    ax2.set_ylabel("motor torques [N m]")
+    ax3 = fig.add_subplot(1, 3, 3, projection="3d")
+    p = sol["p"]
+    ax3.plot(p[:, 0], p[:, 1], p[:, 2])
+    ax3.scatter(*p[0], color="g")
+    ax3.scatter(*p[-1], color="r")
+    ax3.set_title("platform path")
+    fig.suptitle(f"Delta robot pick-and-place, min int |u|^2 = {sol.objective:.5g}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def pendulum3d_periodic_ocp(t_final: float = 2.0, cone_angle: float = np.pi / 6,
+                            intervals: int = 30, degree: int = 3):
+    """A periodic orbit of the 3D pendulum (:func:`daekit.examples.pendulum3d`) of period
+    ``t_final`` through ``p(0) = (sin a, 0, -cos a)``, minimizing ``int |u|^2``, with full
+    periodicity of ``p`` and ``v`` requested: 9 boundary conditions of which only 6 are
+    independent on the manifold of the invariants (the redundancy case; see ``sol.report``).
+    """
+    from ..ocp import OCP
+    from .lecture import pendulum3d
+
+    mod = pendulum3d()
+    u = mod.variables["u"].sym
+    ocp = OCP(mod, t_final=t_final, intervals=intervals, degree=degree)
+    ocp.minimize(integral=ca.sumsqr(u))
+    ocp.initial({"p": [np.sin(cone_angle), 0.0, -np.cos(cone_angle)]})
+    ocp.periodic(["p", "v"])
+    ocp.set_guess({"v": [0.0, 1.5, 0.0]})
+    return ocp
+
+
+def pendulum3d_periodic_figure(sol, path: str) -> None:
+    """Orbit and controls of a :func:`pendulum3d_periodic_ocp` solution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(12, 4))
+    ax1 = fig.add_subplot(1, 3, 1, projection="3d")
+    p = sol["p"]
+    ax1.plot(p[:, 0], p[:, 1], p[:, 2])
+    ax1.scatter(*p[0], color="k")
+    ax1.set_title("orbit p(t)")
+    ax2 = fig.add_subplot(1, 3, 2)
+    ax2.step(sol.t, sol["u"], where="pre")
+    ax2.set_xlabel("t [s]")
+    ax2.set_ylabel("force u [N]")
+    ax3 = fig.add_subplot(1, 3, 3)
+    ax3.semilogy(sol.t, np.abs(sol.invariants) + 1e-18)
+    ax3.legend(sol.invariant_names, fontsize=7)
+    ax3.set_xlabel("t [s]")
+    ax3.set_ylabel("|invariant|")
+    ax3.set_title("invariants (imposed at t = 0 only)")
+    fig.suptitle(f"3D pendulum periodic orbit, T = {sol.T:g} s, "
+                 f"{sol.boundary.rank} of {sol.boundary.n_conditions} boundary conditions kept")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run_all(directory: str = ".") -> dict:
+    """Solve the three examples and save their figures in ``directory``; returns the solutions."""
+    import os
+
+    out = {}
+    for name, make, fig in (
+        ("crane", crane_ocp, crane_figure),
+        ("delta_robot", delta_robot_ocp, delta_robot_figure),
+        ("pendulum3d_periodic", pendulum3d_periodic_ocp, pendulum3d_periodic_figure),
+    ):
+        ocp = make()
+        sol = ocp.solve()
+        fig(sol, os.path.join(directory, f"ocp_{name}.png"))
+        out[name] = sol
+    return out

@@ -204,3 +204,21 @@ def test_independent_rows():
     rank, kept, dropped = independent_rows(A)
     assert rank == 3 and len(dropped) == 1
     assert np.linalg.matrix_rank(A[kept]) == 3
+
+
+def test_examples_solve_and_plot(tmp_path):
+    from daekit.examples import ocp_examples as E
+
+    sol = E.crane_ocp(intervals=30).solve()
+    assert sol.success, sol.report
+    # no faster than the rigid load moved bang-bang: T >= 2 sqrt(D (M + m) / F_max)
+    assert sol.T > 2 * np.sqrt(2.0 * 1.5 / 5.0)
+    assert np.max(np.abs(sol["F"])) <= 5.0 + 1e-8
+    assert sol["x"][-1] == pytest.approx(2.0, abs=1e-6) and sol["y"][-1] == pytest.approx(-1, abs=1e-6)
+    E.crane_figure(sol, str(tmp_path / "crane.png"))
+    sol = E.delta_robot_ocp(intervals=15).solve()
+    assert sol.success, sol.report
+    home = dk.examples.delta_robot_home((0.7, 0.1, 0.45))
+    assert sol["p"][-1] == pytest.approx(home["p"], abs=1e-6)  # a dropped condition holds
+    E.delta_robot_figure(sol, str(tmp_path / "delta.png"))
+    assert (tmp_path / "crane.png").stat().st_size > 0 and (tmp_path / "delta.png").exists()

@@ -1,0 +1,157 @@
+"""Model validation: every error case names the equation or variable at fault (issue 2, item 2)."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import daekit as dk
+from daekit.model import parse_name
+
+
+def pendulum(extra=None):
+    m = dk.Model("pend")
+    p = m.state("p", 2)
+    v = m.state("v", 2)
+    z = m.algebraic("z")
+    m.equation(m.der(p) - v, name="kinematics")
+    m.equation(m.der(v) - (ca.DM([0, -9.81]) - z * p), name="newton")
+    m.equation(0.5 * (ca.dot(p, p) - 1), name="rod")
+    return m, p, v, z
+
+
+def test_undeclared_symbol_names_equation_and_symbol():
+    m, p, v, z = pendulum()
+    q = ca.SX.sym("q")
+    with pytest.raises(dk.ModelError, match=r"equation 'bad' uses the symbol 'q'"):
+        m.equation(p[0] - q, name="bad")
+
+
+def test_der_of_non_variable():
+    m, p, v, z = pendulum()
+    with pytest.raises(dk.ModelError, match=r"derivative of an expression"):
+        m.der(p[0] * p[1])
+    with pytest.raises(dk.ModelError, match=r"'w' is not a variable of this model"):
+        m.der(ca.SX.sym("w"))
+    with pytest.raises(dk.ModelError, match=r"der\(\) takes a model variable"):
+        m.der(3.0)
+    par = m.parameter("L", 1.0)
+    with pytest.raises(dk.ModelError, match=r"der\(L\) is the derivative of a parameter"):
+        m.der(par)
+
+
+def test_duplicate_names():
+    m, p, v, z = pendulum()
+    with pytest.raises(dk.ModelError, match=r"the name 'p' is declared twice"):
+        m.state("p")
+    with pytest.raises(dk.ModelError, match=r"equation name 'rod' is used twice"):
+        m.equation(p[0], name="rod")
+
+
+def test_derivative_of_algebraic_variable():
+    m, p, v, z = pendulum()
+    with pytest.raises(dk.ModelError, match=r"algebraic variable 'z' is used"):
+        m.der(z)
+
+
+def test_state_whose_derivative_never_appears():
+    m = dk.Model("lazy")
+    x = m.state("x")
+    y = m.state("y")
+    m.equation(m.der(x) + x, name="decay")
+    m.equation(y - x, name="copy")
+    with pytest.raises(dk.ModelError, match=r"state 'y' .* derivative never appears"):
+        m.validate()
+
+
+def test_no_equations():
+    m = dk.Model("empty")
+    m.state("x")
+    with pytest.raises(dk.ModelError, match="has no equations"):
+        dk.analyze(m)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_nonfinite_constants(bad):
+    m = dk.Model("nan")
+    x = m.state("x")
+    with pytest.raises(dk.ModelError, match=r"equation 'decay' contains the constant"):
+        m.equation(m.der(x) + bad * x, name="decay")
+    with pytest.raises(dk.ModelError, match=r"parameter 'k' has a non-finite value"):
+        m.parameter("k", bad)
+
+
+def test_not_square_names_overdetermined_equations():
+    m, p, v, z = pendulum()
+    q = m.state("q")
+    m.equation(m.der(q) + q, name="decay")
+    m.equation(q - 1, name="pin")  # a second equation for q alone: 7 equations, 6 unknowns
+    with pytest.raises(dk.StructuralError) as err:
+        m.validate()
+    e = err.value
+    assert "Over-determined" in str(e) and "'pin'" in str(e)
+    assert set(e.overdetermined_equations) == {"decay", "pin"}  # the pendulum is fine
+    assert e.overdetermined_variables == ["q"]
+    assert e.underdetermined_variables == []
+
+
+def test_underdetermined_names_variables():
+    m2 = dk.Model("under2")
+    x = m2.state("x")
+    y = m2.algebraic("y")
+    w = m2.algebraic("w")
+    m2.equation(m2.der(x) + x, name="decay")
+    m2.equation(y + w - x, name="sum")
+    with pytest.raises(dk.StructuralError) as err:
+        m2.validate()
+    assert set(err.value.underdetermined_variables) == {"y", "w"}
+    assert err.value.underdetermined_equations == ["sum"]
+    assert "Under-determined" in str(err.value) and "'y'" in str(err.value)
+
+
+def test_structurally_singular_square_system():
+    # square (3 x 3) but x appears in no equation that can be matched to it
+    m = dk.Model("singular")
+    x = m.state("x")
+    y = m.algebraic("y")
+    w = m.algebraic("w")
+    m.equation(m.der(x) - y, name="a")
+    m.equation(y - 1, name="b")
+    m.equation(y**2 - 2, name="c")
+    with pytest.raises(dk.StructuralError) as err:
+        m.validate()
+    assert set(err.value.overdetermined_equations) == {"b", "c"}
+    assert "w" in err.value.underdetermined_variables
+    del w
+
+
+def test_vector_names_and_higher_derivatives():
+    m = dk.Model("names")
+    p = m.state("p", 2)
+    d2 = m.der(p, 2)
+    assert [d2[i].name() for i in range(2)] == ["der(p,2)[0]", "der(p,2)[1]"]
+    assert ca.is_equal(m.der(m.der(p)), d2)
+    assert m.der(p[1], 3).name() == "der(p,3)[1]"
+    assert parse_name("der(p,2)[1]") == ("p", 2, 1)
+    assert parse_name(" z ") == ("z", 0, None)
+    with pytest.raises(dk.ModelError):
+        parse_name("der(p")
+    with pytest.raises(dk.ModelError, match="no variable 'q'"):
+        m.resolve("q")
+    with pytest.raises(dk.ModelError, match="out of range"):
+        m.resolve("p[2]")
+
+
+def test_sigma_matrix_from_sparsity():
+    m, p, v, z = pendulum()
+    inc = m.incidence()
+    sigma = np.full((5, 5), -1)
+    sigma[inc.rows, inc.cols] = inc.vals
+    # unknowns p0 p1 v0 v1 z; equations kin0 kin1 newton0 newton1 rod
+    expected = np.array([
+        [1, -1, 0, -1, -1],
+        [-1, 1, -1, 0, -1],
+        [0, -1, 1, -1, 0],
+        [-1, 0, -1, 1, 0],
+        [0, 0, -1, -1, -1],
+    ])
+    assert np.array_equal(sigma, expected)

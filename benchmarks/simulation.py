@@ -6,9 +6,10 @@
 3. SciPy ``solve_ivp(method="Radau")`` on the ODE form: state (p, v), and inside the right-hand
    side the 4x4 KKT system ``[m I, p; p^T, 0] [v'; z] = [u - m g e3; -v.v]`` solved for v', z.
 
-Each is timed as the best of ``REPEAT`` runs. Raw IDAS includes building its integrator in every
-run; daekit builds its integrator on the first call and reuses it on later calls on the same
-system (the first call is shown separately: it also pays for the construction). Prints a
+Each is timed as the best of ``REPEAT`` runs. daekit builds its integrator on the first call
+and reuses it on later calls on the same system; raw IDAS is timed both ways: built and run,
+and run only (built once). The ratio compares like with like: daekit's reused call against
+the raw integrator's call alone, and daekit's first call against raw build + run. Prints a
 table with wall times, steps, the final-point difference to daekit, the max rod drift, and
 the ratio daekit / raw IDAS (target <= 1.3).
 
@@ -64,7 +65,10 @@ def main() -> None:
         res = F(x0=x0, z0=z0, p=pv)
         return F, np.asarray(res["xf"])
 
-    t_raw, (F, xf) = best_of(raw)
+    t_raw_build, (F, xf) = best_of(raw)
+    # the fair comparison: raw IDAS built once, only the integration timed
+    t_raw, res = best_of(lambda: F(x0=x0, z0=z0, p=pv))
+    xf = np.asarray(res["xf"])
     ip = [r.x_names.index(f"p[{i}]") for i in range(3)]
     p_raw = xf[ip, -1]
     raw_steps = F.stats()["nsteps"]
@@ -92,7 +96,9 @@ def main() -> None:
         ("daekit.simulate, first call (build)", t_cold, traj.stats["steps"], 0.0,
          drift(traj["p"])),
         ("daekit.simulate (IDAS)", t_dk, traj.stats["steps"], 0.0, drift(traj["p"])),
-        ("raw casadi IDAS", t_raw, raw_steps, float(np.max(np.abs(p_raw - p_dk))),
+        ("raw casadi IDAS, build + run", t_raw_build, raw_steps, float(np.max(np.abs(p_raw - p_dk))),
+         drift(xf[ip].T)),
+        ("raw casadi IDAS, run (built once)", t_raw, raw_steps, float(np.max(np.abs(p_raw - p_dk))),
          drift(xf[ip].T)),
         ("scipy solve_ivp Radau (ODE form)", t_sp, int(sp.nfev), float(np.max(np.abs(p_sp - p_dk))),
          drift(sp.y[:3].T)),
@@ -103,7 +109,9 @@ def main() -> None:
     for name, wall, steps, dp, c in rows:
         print(f"{name:36s} {1e3 * wall:10.2f} {steps:11d} {dp:15.2e} {c:10.2e}")
     ratio = t_dk / t_raw
-    print(f"daekit / raw IDAS = {ratio:.2f} (target <= 1.3): {'OK' if ratio <= 1.3 else 'MISSED'}")
+    print(f"daekit / raw IDAS, both built once = {ratio:.2f} (target <= 1.3): "
+          f"{'OK' if ratio <= 1.3 else 'MISSED'}")
+    print(f"daekit first call / raw IDAS build + run = {t_cold / t_raw_build:.2f}")
 
 
 if __name__ == "__main__":

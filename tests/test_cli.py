@@ -1,0 +1,115 @@
+"""The command line: analyze, reduce, simulate, tour (issue 2 item 6, issue 3 item 6, issue 4)."""
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+
+from daekit.cli import main
+from daekit.examples import exact
+
+PENDULUM_FILE = textwrap.dedent('''
+    import casadi as ca
+    import daekit as dk
+
+    def model():
+        return dk.examples.pendulum3d()
+
+    def planar():
+        m = dk.Model("planar")
+        x = m.state("x"); y = m.state("y"); T = m.algebraic("T")
+        m.equation(m.der(x, 2) - x * T, name="newton_x")
+        m.equation(m.der(y, 2) - (y * T - 9.81), name="newton_y")
+        m.equation(x**2 + y**2 - 1, name="rod")
+        return m
+
+    def not_a_model():
+        return 42
+''')
+
+
+@pytest.fixture
+def model_file(tmp_path):
+    f = tmp_path / "pend.py"
+    f.write_text(PENDULUM_FILE)
+    return f
+
+
+def test_analyze_json(model_file, capsys):
+    assert main(["analyze", f"{model_file}:planar", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["index"] == 3 and d["structural_index"] == 3 and d["dof"] == 2
+    assert d["structurally_ok"] is True
+    assert d["equation_offsets"] == {"newton_x": 0, "newton_y": 0, "rod": 2}
+    assert d["variable_offsets"] == {"x": 2, "y": 2, "T": 0}
+
+
+def test_analyze_default_function_and_text(model_file, capsys):
+    assert main(["analyze", str(model_file)]) == 0
+    out = capsys.readouterr().out
+    assert "Differential index 3" in out and "Degrees of freedom: 4" in out
+
+
+def test_analyze_builtin_example(capsys):
+    assert main(["analyze", "gear_petzold", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["structurally_ok"] is False and d["index"] == 2 and d["dof"] == 0
+
+
+def test_errors_are_reported_not_raised(model_file, tmp_path, capsys):
+    assert main(["analyze", f"{model_file}:nope"]) == 2
+    assert "has no function 'nope'" in capsys.readouterr().err
+    assert main(["analyze", f"{model_file}:not_a_model"]) == 2
+    assert "expected a daekit.Model" in capsys.readouterr().err
+    assert main(["analyze", str(tmp_path / "missing.py")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_reduce_prints_invariants_and_selection(model_file, capsys):
+    assert main(["reduce", f"{model_file}:planar"]) == 0
+    out = capsys.readouterr().out
+    assert "rod" in out and "d/dt rod" in out
+    assert main(["reduce", f"{model_file}:planar", "--method", "dummy_derivatives"]) == 0
+    out = capsys.readouterr().out
+    assert "State selection" in out
+
+
+def test_simulate_matches_exact_pendulum(model_file, tmp_path, capsys):
+    out_json = tmp_path / "traj.json"
+    out_png = tmp_path / "traj.png"
+    fixed = json.dumps({"x": 1.0, "der(x)": 0.0})  # case B: theta0 = pi/2, released at rest
+    guess = json.dumps({"y": 0.0, "der(y)": 0.0})
+    assert main(["simulate", f"{model_file}:planar", "--t-end", "1", "--points", "11",
+                 "--fixed", fixed, "--guess", guess, "--rtol", "1e-10", "--atol", "1e-10",
+                 "--json", str(out_json), "--plot", str(out_png), "--quiet"]) == 0
+    data = json.loads(out_json.read_text())
+    ref = exact.pendulum_planar(np.array([1.0]), np.pi / 2, g=9.81, L=1.0)
+    assert data["values"]["x"][-1] == pytest.approx(float(np.ravel(ref["x"])[0]), abs=1e-7)
+    assert data["values"]["y"][-1] == pytest.approx(float(np.ravel(ref["y"])[0]), abs=1e-7)
+    assert out_png.stat().st_size > 1000
+    assert "max |invariant|" in capsys.readouterr().out
+
+
+def test_simulate_bad_json(model_file, capsys):
+    assert main(["simulate", f"{model_file}:planar", "--t-end", "1", "--fixed", "{x: 1"]) == 2
+    assert "not valid JSON" in capsys.readouterr().err
+
+
+def test_tour_short_run(tmp_path, capsys):
+    """The tour's story holds even on a short run: drift without stabilization, none with the
+    remedies; the figures are written."""
+    from daekit.tour import run_tour
+
+    rows = run_tour(out=tmp_path, t_end=5.0, quiet=True, animations=False, ocp=False)
+    out = capsys.readouterr().out
+    assert "Differential index 3" in out and "Figures written to" in out
+    by = {(r.system, r.remedy.split(" (")[0]): r for r in rows}
+    none = by["pendulum", "none"]
+    assert none.max_c > 1e-8  # the index-1 form drifts at rtol = atol = 1e-6
+    assert by["pendulum", "Baumgarte"].max_c < none.max_c
+    for remedy in ("projection", "dummy derivatives", "RATTLE"):
+        assert by["pendulum", remedy].max_c < 1e-9
+        assert by["delta robot", remedy].max_c < 1e-9
+    assert (tmp_path / "pendulum3d_drift.png").exists()
+    assert (tmp_path / "delta_robot_drift.png").exists()

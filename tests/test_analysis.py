@@ -104,3 +104,11 @@ def test_analyze_rejects_a_structurally_singular_model():
     m.equation(m.der(x) + 2 * x, name="b")
     with pytest.raises(dk.StructuralError, match="'y'"):
         dk.analyze(m)
+
+
+def test_input_derivatives_are_reported_for_l2():
+    a = dk.analyze(dk.examples.l2())
+    assert a.input_derivatives == {"u": 2}  # x1 = u', z = u''
+    assert "der(u,2)" in a.explain()
+    assert dk.analyze(dk.examples.pendulum3d()).input_derivatives == {}  # u enters undifferentiated
+    assert int(differential_index(dk.examples.l2())) == 3

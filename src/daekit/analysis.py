@@ -192,6 +192,9 @@ class DerivativeArrayResult:
     ranks: list[tuple[int, int, int]]  # (level, rank of J, rank of J without the targets)
     constraints_on_states: int
 
+    def __int__(self) -> int:
+        return self.index
+
 
 def _time_derivative(expr: ca.SX, syms: list[ca.SX], next_syms: list[ca.SX], t: ca.SX) -> ca.SX:
     """Total time derivative by a directional derivative along (1, x', x'', ...)."""
@@ -291,6 +294,9 @@ class Analysis:
     equation_offsets, variable_offsets : dict
         Pryce's canonical offsets ``c_i`` (times each equation element is differentiated)
         and ``d_j`` (highest derivative of each unknown needed), by element name.
+    input_derivatives : dict
+        Input (control) elements whose time derivatives the reduction will need, with the
+        highest order needed, e.g. ``{"u": 2}`` for lecture L2.
     """
 
     model_name: str
@@ -308,6 +314,7 @@ class Analysis:
     easy: EasyTest
     numeric: DerivativeArrayResult | None
     n_inputs: int = 0
+    input_derivatives: dict[str, int] = field(default_factory=dict)
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
@@ -408,6 +415,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(
+        input_derivatives=_input_derivatives(model, c),
         model_name=model.name,
         structural_index=sig.index,
         index=index,
@@ -424,6 +432,21 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         numeric=numeric,
         n_inputs=sum(v.size for v in model.controls),
     )
+
+
+def _input_derivatives(model: Model, c: np.ndarray) -> dict[str, int]:
+    """Highest derivative of each control element in the equations differentiated c_i times."""
+    out: dict[str, int] = {}
+    F = model.residual
+    for var in model.controls:
+        for order in range(0, (max(var.ders) if var.ders else 0) + 1):
+            rows, cols = ca.jacobian_sparsity(F, var.der(order)).get_triplet()
+            for i, k in zip(rows, cols):
+                need = order + int(c[i])
+                name = var.element(int(k))
+                if need > 0 and need > out.get(name, 0):
+                    out[name] = need
+    return out
 
 
 # ----------------------------------------------------------------------------- explain
@@ -544,6 +567,14 @@ def _explain(a: Analysis) -> str:
             lines.append(
                 "Consistency conditions (must hold at the initial time): " + ", ".join(conds) + "."
             )
+    if a.input_derivatives:
+        needs = ", ".join(_der(nm, k) for nm, k in _group(a.input_derivatives))
+        lines.append(
+            f"Inputs: the equations to differentiate contain inputs, so the reduction needs their "
+            f"derivatives up to {needs}: give inputs as CasADi expressions of time when "
+            "simulating (daekit differentiates them), and in optimal control they become a chain "
+            "of integrators."
+        )
     lines.append("")
     if a.index <= 1 and e.passed:
         lines.append("What to do: nothing special; simulate it directly.")
@@ -555,8 +586,10 @@ def _explain(a: Analysis) -> str:
         )
     else:
         lines.append(
-            "What to do: rewrite the model so that the structure shows the true dependencies "
-            "(e.g. combine the cancelling equations by hand), then reduce it."
+            "What to do: dk.reduce_index(model) repairs cancellations with constant coefficients "
+            "by itself (it replaces an equation by a combination in which the leading derivatives "
+            "cancel, then reduces; see r.info['amendments']). Where the cancellation depends on "
+            "the variables, rewrite the model so that the structure shows the true dependencies."
         )
     return "\n".join(lines)
 

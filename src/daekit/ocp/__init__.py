@@ -31,6 +31,7 @@ import numpy as np
 from ..errors import OCPError
 from ..reduced import ReducedDAE
 from .consistency import BoundaryAnalysis, analyze_boundary
+from .nlp import quiet
 from .problem import Augmented, augment
 
 __all__ = ["OCP", "Free", "OCPSolution", "BoundaryAnalysis"]
@@ -87,11 +88,20 @@ class OCP:
         Number of control intervals ``N``.
     degree : int
         Radau IIA collocation degree, 1 to 5 (collocation only).
-    method : {"collocation"}
-        Direct collocation (multiple shooting on IDAS is planned, not yet available).
+    method : {"collocation", "shooting"}
+        Direct collocation with Radau IIA (:mod:`daekit.ocp.collocation`), or direct multiple
+        shooting with one IDAS integrator per interval (:mod:`daekit.ocp.shooting`; CVODES
+        when there are no algebraic unknowns). Shooting integrates to the integrator's
+        tolerance on the intervals and imposes bounds and path constraints at the interval
+        boundaries only; it uses a limited-memory Hessian unless
+        ``solver_options={"hessian_approximation": "exact"}``.
     controls : {"constant", "polynomial"}
         Piecewise constant controls, or piecewise polynomial of degree ``degree - 1``
         (values at the Radau points; collocation only).
+    integrator_options : dict
+        Options of the shooting integrator (CasADi's IDAS options), overriding daekit's
+        ``{"abstol": 1e-10, "reltol": 1e-10, "max_num_steps": 50000}``; also used by
+        :meth:`OCPSolution.simulate`.
     verbose : bool
         Let IPOPT print its iterations.
     solver_options : dict
@@ -121,6 +131,7 @@ class OCP:
         controls: str = "constant",
         verbose: bool = False,
         solver_options: dict | None = None,
+        integrator_options: dict | None = None,
     ) -> None:
         if isinstance(model, ReducedDAE):
             r = model
@@ -141,17 +152,19 @@ class OCP:
             raise OCPError(f"OCP: intervals must be a positive integer, got {intervals!r}")
         if int(degree) != degree or not 1 <= degree <= 5:
             raise OCPError(f"OCP: degree must be 1, 2, 3, 4 or 5 (Radau IIA), got {degree!r}")
-        if method == "shooting":
-            raise OCPError(
-                "OCP: multiple shooting on IDAS is not available yet; use "
-                "method='collocation' (Radau IIA)"
-            )
-        if method != "collocation":
-            raise OCPError(f"OCP: method must be 'collocation', got {method!r}")
+        if method not in ("collocation", "shooting"):
+            raise OCPError(f"OCP: method must be 'collocation' or 'shooting', got {method!r}")
         if controls not in ("constant", "polynomial"):
             raise OCPError(f"OCP: controls must be 'constant' or 'polynomial', got {controls!r}")
         if method == "shooting" and controls != "constant":
-            raise OCPError("OCP: multiple shooting supports piecewise constant controls only")
+            raise OCPError(
+                "OCP: multiple shooting supports piecewise constant controls only "
+                "(controls='constant'); use method='collocation' for polynomial controls"
+            )
+        if integrator_options is not None and not isinstance(integrator_options, dict):
+            raise OCPError(
+                f"OCP: integrator_options must be a dict, got {type(integrator_options).__name__}"
+            )
         self.model = model
         self.reduced = r
         self.intervals = int(intervals)
@@ -160,6 +173,7 @@ class OCP:
         self.control_mode = controls
         self.verbose = bool(verbose)
         self.solver_options = dict(solver_options or {})
+        self.integrator_options = dict(integrator_options or {})
         self._aug: Augmented = augment(r)
         if isinstance(t_final, Free):
             self._T_free = (float(t_final.lo), float(t_final.hi), float(t_final.guess))
@@ -445,11 +459,16 @@ class OCP:
 
         Parameters
         ----------
-        guess : None, OCPSolution, or dict
+        guess : None, Trajectory, OCPSolution, or dict
             None: simulate the model from a consistent initial point with the controls at
-            zero (clipped to their bounds). A previous :class:`OCPSolution`: warm start from
-            it. A dict: constant or callable guesses for controls (``{"u": lambda t: ...}``,
-            used in the simulation) and constant guesses for states at ``t = 0``.
+            zero (clipped to their bounds). A :class:`daekit.Trajectory` from
+            :func:`daekit.simulate` (your simulation with controls of your choice): its values
+            by the original names are interpolated onto the NLP's grid (with a free final
+            time, its last time is the guess of ``T``). A previous :class:`OCPSolution`: warm
+            start from it (its decision vector as is when the NLP is the same, else
+            interpolated by names: a collocation solution can start a shooting solve). A
+            dict: constant or callable guesses for controls (``{"u": lambda t: ...}``, used
+            in the simulation) and constant guesses for states at ``t = 0``.
         redundancy : {"drop", "keep"}
             "drop" imposes an independent subset of the boundary conditions on the invariant
             manifold (see :mod:`daekit.ocp.consistency`); "keep" imposes all (naive).
@@ -478,7 +497,7 @@ class OCP:
             from .collocation import transcribe
         else:
             from .shooting import transcribe
-        tr = transcribe(self, g.fun)
+        tr = transcribe(self, g.fun, g.T, g.p)
         B = tr.builder
         lbx, ubx, x0, lbg, ubg = B.arrays()
         if g.V is not None and g.V.size == x0.size and g.key == self._structure_key():
@@ -510,7 +529,8 @@ class OCP:
                      "iter_count": 0}
         else:
             t_solve = _time.perf_counter()
-            res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            with quiet(not self.verbose):
+                res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
             t_solve = _time.perf_counter() - t_solve
             stats = dict(solver.stats())
             stats["t_solve"] = t_solve
@@ -522,6 +542,19 @@ class OCP:
         success = bool(stats.get("success", False)) or status in _STATUS_OK
         Vopt = np.asarray(res["x"]).ravel()
         gopt = np.asarray(res["g"]).ravel()
+        viol_g = np.maximum(np.maximum(lbg - gopt, gopt - ubg), 0.0)
+        viol_x = np.maximum(np.maximum(lbx - Vopt, Vopt - ubx), 0.0)
+        stats.update({
+            "method": self.method,
+            "transcription": tr.method,
+            "intervals": self.intervals,
+            "guess": g.note,
+            "max_constraint_violation": float(np.max(viol_g, initial=0.0)),
+            "max_bound_violation": float(np.max(viol_x, initial=0.0)),
+            "n_boundary_conditions": len(self._bc_labels),
+            "boundary_rank": ba.rank,
+            "boundary_dropped": [ba.labels[i] for i in ba.dropped] if redundancy == "drop" else [],
+        })
         sol = OCPSolution._from_grid(self, tr, Vopt, float(res["f"]), success, status, stats)
         sol.boundary = ba
         sol.report, sol.infeasibilities = diagnose(
@@ -580,6 +613,7 @@ class OCPSolution:
         self.report = ""
         self.infeasibilities: list = []
         self.boundary: BoundaryAnalysis | None = None
+        self.method = ""
 
     @classmethod
     def _from_grid(cls, ocp: OCP, tr, V, f, success, status, stats) -> OCPSolution:
@@ -599,6 +633,15 @@ class OCPSolution:
             s.invariants = s._eval(a.inv)
         else:
             s.invariants = np.zeros((s.t.size, 0))
+        s.method = ocp.method
+        s._N = ocp.intervals
+        s._ncoef = tr.ncoef
+        s._node_index = list(tr.node_index) if tr.node_index is not None else None
+        s._Wint = np.asarray(tr.controls(V)).reshape(a.nw, -1) if tr.controls is not None else None
+        s._integrator_options = dict(ocp.integrator_options)
+        if s.invariants.size:
+            stats["max_invariant_t0"] = float(np.max(np.abs(s.invariants[0])))
+            stats["max_invariant"] = float(np.max(np.abs(s.invariants)))
         return s
 
     def _eval(self, expr: ca.SX) -> np.ndarray:
@@ -613,6 +656,86 @@ class OCPSolution:
         els = self._aug.elements(name, f"solution[{name!r}]")
         val = self._eval(ca.vertcat(*[self._aug.names[e] for e in els]))
         return val[:, 0] if len(els) == 1 else val
+
+    def simulate(self, points_per_interval: int = 10, rtol: float | None = None,
+                 atol: float | None = None):
+        """Finer output: integrate each interval with IDAS from the solution's state at its
+        start, with the optimal controls, and return a :class:`daekit.Trajectory`.
+
+        The time grid has ``points_per_interval`` equally spaced points on each interval (and
+        ``t = 0``); values by the original model's names, the invariants, and in ``stats``
+        ``"node_mismatch"``: the largest difference between an interval's integrated end state
+        and the solution's state there (zero up to the integrator's tolerance for shooting;
+        for collocation, an a posteriori estimate of its discretization error).
+
+        >>> import daekit as dk
+        >>> m = dk.Model("cart"); s = m.state("s"); u = m.control("u")
+        >>> _ = m.equation(m.der(s, 2) - u, name="newton")
+        >>> ocp = dk.OCP(m, t_final=1.0, intervals=4, method="shooting")
+        >>> _ = ocp.minimize(integral=u**2).initial({"s": 0, "der(s)": 0}).final({"s": 1})
+        >>> fine = ocp.solve().simulate(points_per_interval=5)
+        >>> fine.t.size, round(float(fine["s"][-1]), 8), fine.stats["node_mismatch"] < 1e-8
+        (21, 1.0, True)
+        """
+        from ..simulate import Trajectory
+        from .collocation import radau_coefficients
+        from .shooting import DEFAULT_INTEGRATOR_OPTIONS, interval_integrator
+
+        if self._Wint is None or self._node_index is None:
+            raise OCPError("this solution has no interval data to simulate from")
+        n = int(points_per_interval)
+        if n < 1:
+            raise OCPError(f"simulate(points_per_interval={points_per_interval!r}): need >= 1")
+        a, N, nc = self._aug, self._N, self._ncoef
+        opts = {**DEFAULT_INTEGRATOR_OPTIONS, **self._integrator_options}
+        if rtol is not None:
+            opts["reltol"] = float(rtol)
+        if atol is not None:
+            opts["abstol"] = float(atol)
+        svals = np.linspace(0.0, 1.0, n + 1)[1:]
+        F = interval_integrator(a, None, tout=svals, ncoef=nc, options=opts, name="dense")
+        h = self.T / N
+        idx = self._node_index
+        X0, Z0 = self._X[:, idx[:N]], self._Z[:, idx[:N]]
+        Wc = self._Wint.reshape(a.nw, N, nc).transpose(2, 0, 1).reshape(a.nw * nc, N)
+        P = np.vstack([Wc, np.repeat(self._P.reshape(-1, 1), N, axis=1),
+                       h * np.arange(N).reshape(1, -1), np.full((1, N), h)])
+        try:
+            with quiet():
+                res = F.map(N)(x0=X0, z0=Z0, p=P)
+        except RuntimeError as exc:
+            raise OCPError(
+                "simulating the solution failed: "
+                f"{str(exc).strip().splitlines()[-1]} (try rtol/atol)"
+            ) from None
+        xf = np.asarray(res["xf"]).reshape(a.nx, N * n)
+        zf = np.asarray(res["zf"]).reshape(a.nz, N * n)
+        if nc == 1:
+            basis = np.ones((n, 1))
+        else:
+            tau = radau_coefficients(nc)[0][1:]
+            basis = np.array([[np.prod([(sv - tau[q]) / (tau[r] - tau[q])
+                                        for q in range(nc) if q != r]) for r in range(nc)]
+                              for sv in svals])
+        Wd = np.einsum("jr,wkr->wkj", basis, self._Wint.reshape(a.nw, N, nc)).reshape(a.nw, -1)
+        t = np.concatenate([[0.0], (np.arange(N).reshape(-1, 1) + svals).ravel() * h])
+        X = np.hstack([self._X[:, :1], xf])
+        Z = np.hstack([self._Z[:, :1], zf])
+        W = np.hstack([self._W[:, :1], Wd])
+        ends = xf[:, n - 1::n]
+        mismatch = float(np.max(np.abs(ends - self._X[:, idx[1:]]), initial=0.0))
+        names = list(a.names)
+        fn = ca.Function("ev", [a.t, a.x, a.z, a.w, a.p],
+                         [ca.vertcat(*[ca.SX(a.names[k]) for k in names]), a.inv])
+        m = t.size
+        vals, inv = fn.map(m)(t.reshape(1, -1), X, Z, W, np.repeat(self._P.reshape(-1, 1), m, 1))
+        vals, inv = np.asarray(vals), np.asarray(inv)
+        return Trajectory(
+            t, {k: vals[i] for i, k in enumerate(names)}, inv.T if inv.size else None,
+            self.invariant_names,
+            {"method": f"IDAS re-simulation of the {self.method} solution, interval by interval",
+             "node_mismatch": mismatch, "points_per_interval": n},
+        )
 
     @property
     def controls(self) -> dict[str, np.ndarray]:

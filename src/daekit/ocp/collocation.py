@@ -67,10 +67,15 @@ class Transcription:
     method: str
     nt: int
     hessian_exact: bool = True
+    controls: ca.Function | None = None  # V -> (nw, N * ncoef): the control of each interval
+    node_index: list[int] | None = None  # grid column of each interval boundary t_k
+    ncoef: int = 1  # control values per interval (1: constant, d: polynomial)
 
 
-def transcribe(ocp, guess) -> Transcription:
-    """Build the collocation NLP of ``ocp`` (an :class:`daekit.ocp.OCP` after preparation)."""
+def transcribe(ocp, guess, T_guess: float | None = None,
+                p_guess=None) -> Transcription:
+    """Build the collocation NLP of ``ocp`` (an :class:`daekit.ocp.OCP` after preparation);
+    ``guess(t)`` gives ``(X, Z, W)`` at times ``t`` of a horizon ``T_guess``."""
     a = ocp._aug
     N, d = ocp.intervals, ocp.degree
     tau, C, b, e0 = radau_coefficients(d)
@@ -79,8 +84,8 @@ def transcribe(ocp, guess) -> Transcription:
     f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, ocp._lagrange])
 
     # parameters and final time
-    P, T = _params_and_time(ocp, B)
-    Tg = ocp._T_guess
+    Tg = ocp._T_guess if T_guess is None else float(T_guess)
+    P, T = _params_and_time(ocp, B, T_guess=Tg, p_guess=p_guess)
     h = T / N
     xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
 
@@ -94,14 +99,17 @@ def transcribe(ocp, guess) -> Transcription:
     Xk = X0
     J = 0
     W0 = None
+    Wint = []
     for k in range(N):
         fr_k = [(k + tau[j]) / N for j in range(1, d + 1)]
         gx, gz, gw = guess(tv(fr_k))
         if ocp.control_mode == "constant":
             Wk, _ = B.var(f"w_{k}", nw, wlb, wub, gw.mean(axis=1) if nw else 0.0)
             Wc = [Wk] * d
+            Wint.append(Wk)
         else:
             Wc = [B.var(f"w_{k}_{j}", nw, wlb, wub, gw[:, j - 1])[0] for j in range(1, d + 1)]
+            Wint.extend(Wc)
         if k == 0:
             W0 = Wc[0] if ocp.control_mode == "constant" else sum(
                 e0[j] * Wc[j] for j in range(d)
@@ -148,23 +156,34 @@ def transcribe(ocp, guess) -> Transcription:
         [ca.DM(fr).T, ca.horzcat(*Xgrid), ca.horzcat(*Zgrid), ca.horzcat(*Wgrid), T, P],
     )
     ends = ca.Function("ends", [V], [v0, vT, P, T])
-    return Transcription(B, ca.SX(J), grid, ends, f"Radau IIA collocation, degree {d}", len(fr))
+    controls = ca.Function("controls", [V], [ca.horzcat(*Wint)])
+    ncoef = 1 if ocp.control_mode == "constant" else d
+    return Transcription(B, ca.SX(J), grid, ends, f"Radau IIA collocation, degree {d}", len(fr),
+                         controls=controls, node_index=[k * d for k in range(N + 1)],
+                         ncoef=ncoef)
 
 
-def _params_and_time(ocp, B: NLPBuilder):
+def _params_and_time(ocp, B: NLPBuilder, T_guess: float | None = None, p_guess=None):
+    """Parameters (free ones as decision variables, started at ``p_guess`` when given) and the
+    final time (a decision variable when free, started at ``T_guess`` clipped to its bounds)."""
     a = ocp._aug
+    S = B.sym
     entries = []
     for i, nm in enumerate(a.p_names):
         if nm in ocp._free_params:
             lo, hi, g = ocp._free_params[nm]
+            if p_guess is not None and np.isfinite(p_guess[i]):
+                g = float(np.clip(p_guess[i], lo, hi))
             v, _ = B.var(f"param_{nm}", 1, lo, hi, g)
             entries.append(v)
         else:
-            entries.append(ocp._p_values[i])
-    P = ca.vertcat(*[ca.SX(e) for e in entries]) if entries else ca.SX(0, 1)
+            entries.append(S(float(ocp._p_values[i])))
+    P = ca.vertcat(*entries) if entries else S(0, 1)
     if ocp._T_free is not None:
         lo, hi, g = ocp._T_free
+        if T_guess is not None:
+            g = float(np.clip(T_guess, lo, hi))
         T, _ = B.var("T", 1, lo, hi, g)
     else:
-        T = ca.SX(ocp._T_fixed)
+        T = S(ocp._T_fixed)
     return P, T

@@ -1,9 +1,20 @@
 """Initial guesses for the OCP: a simulation with given controls, or a previous solution.
 
-The simulation starts from a consistent point: the closest point (least squares on the
-initial conditions, then on the distance to the user's guesses) that satisfies the algebraic
-equations and the invariants, found with a small IPOPT problem. It then integrates the
-index-1 system with IDAS interval by interval with the guessed controls held constant.
+Four sources, all ending as a function ``t -> (X, Z, W)`` that the transcriptions sample on
+their own grid:
+
+- none or a dict: daekit simulates. The simulation starts from a consistent point: the closest
+  point (least squares on the initial conditions, then on the distance to the user's guesses)
+  that satisfies the algebraic equations and the invariants, found with a small IPOPT problem.
+  It then integrates the index-1 system with IDAS interval by interval with the guessed
+  controls held constant.
+- a :class:`daekit.Trajectory` from :func:`daekit.simulate` (the user's own simulation with
+  the controls of their choice): its values, read by the original model's names, are
+  interpolated linearly onto the NLP's grid.
+- a previous :class:`~daekit.ocp.OCPSolution` of the same OCP object: its decision vector is
+  reused as is when the NLP has the same structure (a warm start in the strict sense);
+  otherwise, and for a solution of another OCP on the same model (e.g. collocation to
+  shooting), it is interpolated by names like a trajectory.
 """
 
 from __future__ import annotations
@@ -14,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
+from .nlp import quiet
 
 __all__ = ["Guess", "make_guess"]
 
@@ -46,26 +58,37 @@ def _interp_fun(t: np.ndarray, X: np.ndarray, Z: np.ndarray, W: np.ndarray):
 
 def make_guess(ocp, guess) -> Guess:
     """Build the initial guess of ``ocp`` (see the module docstring)."""
+    from ..simulate import Trajectory
     from . import OCPSolution
 
     a = ocp._aug
     if isinstance(guess, OCPSolution):
         if guess._aug is not a:
             # a solution of another OCP object on the same model: interpolate by names
-            X = np.vstack([guess[n] for n in a.x_names]) if a.nx else np.zeros((0, guess.t.size))
-            Z = np.vstack([guess[n] for n in a.z_names]) if a.nz else np.zeros((0, guess.t.size))
-            W = np.vstack([guess[n] for n in a.w_names]) if a.nw else np.zeros((0, guess.t.size))
-            return Guess(_interp_fun(guess.t, X, Z, W), guess.T, ocp._p_guess(),
-                         note="interpolated from a previous solution")
+            vals = {}
+            for n in a.x_names + a.z_names + a.w_names + a.p_names:
+                try:
+                    vals[n] = np.asarray(guess[n], float).reshape(-1)
+                except OCPError:
+                    pass
+            return _from_values(ocp, guess.t, guess.T, vals,
+                                f"interpolated from a previous solution ({guess.method})")
         T = guess.T if ocp._T_free is not None else ocp._T_guess
         tt = guess.t * (T / guess.T)
         p = guess._P.copy()
         return Guess(_interp_fun(tt, guess._X, guess._Z, guess._W), T, p, guess._V, guess._key,
                      "warm start from a previous solution")
+    if isinstance(guess, Trajectory):
+        if guess.t.size < 1:
+            raise OCPError("solve(guess=trajectory): the trajectory is empty")
+        t = guess.t - guess.t[0]
+        return _from_values(ocp, t, float(t[-1]), guess.values,
+                            "interpolated from a simulation (Trajectory, "
+                            f"{guess.t.size} points on [{guess.t[0]:g}, {guess.t[-1]:g}])")
     if guess is not None and not isinstance(guess, dict):
         raise OCPError(
-            f"solve(guess=...): expected None, a previous OCPSolution or a dict, got "
-            f"{type(guess).__name__}"
+            f"solve(guess=...): expected None, a daekit.Trajectory (from daekit.simulate), a "
+            f"previous OCPSolution or a dict, got {type(guess).__name__}"
         )
     guess = dict(guess or {})
     T = ocp._T_guess
@@ -116,7 +139,8 @@ def make_guess(ocp, guess) -> Guess:
         wk = w_at(tk + 0.5 * h)
         if failed is None and sim is not None:
             try:
-                res = sim(x0=x, z0=z, p=np.concatenate([wk, p, [tk, h]]))
+                with quiet():
+                    res = sim(x0=x, z0=z, p=np.concatenate([wk, p, [tk, h]]))
                 xf = np.asarray(res["xf"]).reshape(a.nx, -1)
                 zf = np.asarray(res["zf"]).reshape(a.nz, -1)
                 if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(zf))):
@@ -142,6 +166,57 @@ def make_guess(ocp, guess) -> Guess:
     fun = _interp_fun(np.array(ts), np.array(Xs).T.reshape(a.nx, -1),
                       np.array(Zs).T.reshape(a.nz, -1), np.array(Ws).T.reshape(a.nw, -1))
     return Guess(fun, T, p, note=note)
+
+
+def _from_values(ocp, t: np.ndarray, t_end: float, values: dict, note: str) -> Guess:
+    """A guess from values by element name on the times ``t`` (starting at 0).
+
+    Fixed final time: the values are read at the OCP's own times (held constant after the
+    last point when they end early). Free final time: the guess's horizon is ``t_end`` (clipped
+    to the bounds). Elements missing from ``values`` start at zero (controls clipped to their
+    bounds); free parameters take the values' constant when present.
+    """
+    a = ocp._aug
+    t = np.asarray(t, float).ravel()
+    if t.size == 0 or not np.all(np.isfinite(t)):
+        raise OCPError("solve(guess=...): the guess has no (finite) time points")
+    if ocp._T_free is not None:
+        lo, hi, _ = ocp._T_free
+        T = float(np.clip(t_end, lo, hi)) if t_end > 0 else ocp._T_guess
+    else:
+        T = ocp._T_guess
+    xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
+    missing = []
+
+    def rows(names, lb, ub):
+        out = np.zeros((len(names), t.size))
+        for i, n in enumerate(names):
+            v = values.get(n)
+            if v is None or np.asarray(v).size != t.size:
+                missing.append(n)
+                out[i] = np.clip(0.0, lb[i], ub[i])
+            else:
+                out[i] = np.asarray(v, float).ravel()
+        return out
+
+    X = rows(a.x_names, xlb, xub)
+    Z = rows(a.z_names, zlb, zub)
+    W = np.clip(rows(a.w_names, wlb, wub), wlb.reshape(-1, 1), wub.reshape(-1, 1))
+    if t.size == 1:  # a single point: hold it
+        t = np.array([0.0, T])
+        X, Z, W = (np.repeat(M, 2, axis=1) for M in (X, Z, W))
+    p = ocp._p_guess()
+    for i, n in enumerate(a.p_names):
+        v = values.get(n)
+        if n in ocp._free_params and v is not None and np.size(v):
+            lo, hi, _ = ocp._free_params[n]
+            p[i] = float(np.clip(np.asarray(v, float).ravel()[0], lo, hi))
+    if missing:
+        note += f"; not in it, started at 0: {', '.join(missing[:8])}"
+        note += ", ..." if len(missing) > 8 else ""
+    if t[-1] < T * (1 - 1e-9):
+        note += f"; it ends at t = {t[-1]:g} < T = {T:g}, held constant after"
+    return Guess(_interp_fun(t, X, Z, W), T, p, note=note)
 
 
 def _interval_integrator(a, tau: np.ndarray):

@@ -3,12 +3,15 @@ labels (so that a failed solve can name the constraint at fault), and the soluti
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
-__all__ = ["NLPBuilder", "RowGroup"]
+__all__ = ["NLPBuilder", "RowGroup", "quiet"]
 
 
 @dataclass
@@ -70,3 +73,37 @@ class NLPBuilder:
 
     def G(self):
         return ca.vertcat(*self.g) if self.g else self.sym(0, 1)
+
+
+@contextlib.contextmanager
+def quiet(enabled: bool = True):
+    """Silence output written by C code (IPOPT, SUNDIALS' error handler, CasADi's evaluation
+    warnings when an integration fails inside a line search) to file descriptors 1 and 2.
+
+    Errors still arrive as Python exceptions; ``enabled=False`` (``verbose=True``) lets
+    everything through.
+    """
+    if not enabled:
+        yield
+        return
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:  # pragma: no cover - no file descriptors (embedded interpreters)
+        yield
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, devnull):
+            os.close(fd)

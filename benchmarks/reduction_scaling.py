@@ -48,7 +48,7 @@ def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
         t0 = time.perf_counter()
         r = reduce_index(m)
         t_dk = time.perf_counter() - t0
-        assert r.nz == 5 * N and r.nx == 6 * N, r
+        assert r.nz == 3 * N and r.nx == 4 * N, r  # q' = v eliminated: states (q, v)
         t_ca = None
         if casadi_on and prev is not None and prev[1] * (N / prev[0]) ** 3 > CASADI_LIMIT:
             casadi_on = False

@@ -94,47 +94,158 @@ def test_every_example_reduces_to_index1(name):
     assert rd.nx == int(d.sum() - c.sum())
 
 
-def test_pendulum3d_structure_and_invariants():
-    m = ex.pendulum3d()
-    r = reduce_index(m)
+def _pendulum3d_invariant_check(r, with_der_p: bool):
+    """rod = (p.p - L^2)/2 and d/dt rod = p.v at random points (reference-problems L3)."""
+    f = ca.Function("inv", [r.x, r.z, r.u, r.p], [r.invariants])
+    rng = np.random.default_rng(1)
+    L = float(r.p_values[r.p_names.index("L")])
+    ir, idr = r.invariant_names.index("rod"), r.invariant_names.index("d/dt rod")
+    for _ in range(5):
+        p, v = rng.standard_normal(3), rng.standard_normal(3)
+        vals = {f"p[{i}]": p[i] for i in range(3)}
+        vals.update({f"v[{i}]": v[i] for i in range(3)})
+        if with_der_p:
+            vals.update({f"der(p)[{i}]": v[i] for i in range(3)})  # on the kinematics invariant
+        x, z = _values(r, vals)
+        inv = np.asarray(f(x, z, rng.standard_normal(r.nu), r.p_values)).ravel()
+        assert inv[ir] == pytest.approx(0.5 * (p @ p - L**2), rel=1e-13, abs=1e-13)
+        assert inv[idr] == pytest.approx(p @ v, rel=1e-13, abs=1e-13)
+        others = [k for k in range(len(inv)) if k not in (ir, idr)]
+        assert np.allclose(inv[others], 0.0)
+
+
+def test_pendulum3d_plain_pryce_scheme():
+    """eliminate=False: Pryce's scheme as it is, d_p = 2: p, der(p), v are states and the
+    kinematics p' = v stays as three invariants."""
+    r = reduce_index(ex.pendulum3d(), eliminate=False)
+    assert (r.nx, r.nz) == (9, 7)
     assert r.invariant_names == [
         "kinematics[0]", "kinematics[1]", "kinematics[2]", "rod", "d/dt rod",
     ]
     assert sorted(r.z_names) == sorted(
         ["der(p,2)[0]", "der(p,2)[1]", "der(p,2)[2]", "der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
     )
-    f = ca.Function("inv", [r.x, r.z, r.u, r.p], [r.invariants])
-    rng = np.random.default_rng(1)
-    L = float(r.p_values[r.p_names.index("L")])
-    for _ in range(5):
-        p, v = rng.standard_normal(3), rng.standard_normal(3)
-        vals = {f"p[{i}]": p[i] for i in range(3)}
-        vals.update({f"v[{i}]": v[i] for i in range(3)})
-        vals.update({f"der(p)[{i}]": v[i] for i in range(3)})  # on the kinematics invariant
-        x, z = _values(r, vals)
-        inv = np.asarray(f(x, z, rng.standard_normal(r.nu), r.p_values)).ravel()
-        assert inv[3] == pytest.approx(0.5 * (p @ p - L**2), rel=1e-13, abs=1e-13)
-        assert inv[4] == pytest.approx(p @ v, rel=1e-13, abs=1e-13)
-        assert np.allclose(inv[:3], 0.0)
+    _pendulum3d_invariant_check(r, with_der_p=True)
 
 
-def test_pendulum3d_index1_form_matches_lecture():
-    """alg solved for v', z equals [m I, p; p^T, 0] [v'; z] = [u - m g e3; -v.v] (L3)."""
+def test_pendulum3d_minimal_index1_form():
+    """Default: der(p) = v is eliminated; the lecture's index-1 form (L3): states (p, v),
+    algebraic (v', z), invariants rod and d/dt rod only."""
     r = reduce_index(ex.pendulum3d())
+    assert r.info["index1_check"] == "passed"
+    assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
+    assert r.z_names == ["der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
+    assert r.invariant_names == ["rod", "d/dt rod"]
+    assert r.info["alg_names"] == ["newton[0]", "newton[1]", "newton[2]", "d2/dt2 rod"]
+    v = r.model.variables["v"]
+    for i in range(3):
+        assert ca.is_equal(r.variables[f"der(p)[{i}]"], v.sym[i])
+        assert ca.is_equal(r.variables[f"der(p,2)[{i}]"], v.der(1)[i])
+    # p' = v
+    assert all(ca.is_equal(r.ode[i], v.sym[i]) for i in range(3))
+    assert [e["variable"] for e in r.info["eliminated"]] == [f"der(p)[{i}]" for i in range(3)]
+    _pendulum3d_invariant_check(r, with_der_p=False)
+
+
+def test_pendulum3d_alg_equals_lecture_kkt_form():
+    """alg equals [m I, p; p^T, 0] [v'; z] - [u - m g e3; -v.v] (lecture L3) at random
+    points (not only on solutions), for random parameters too."""
+    r = reduce_index(ex.pendulum3d())
+    f = ca.Function("g", [r.x, r.z, r.u, r.p], [r.alg])
     rng = np.random.default_rng(2)
-    p, v, u = rng.standard_normal(3), rng.standard_normal(3), rng.standard_normal(3)
-    mass, g = 1.0, 9.81
-    K = np.block([[mass * np.eye(3), p[:, None]], [p[None, :], np.zeros((1, 1))]])
-    sol = np.linalg.solve(K, np.concatenate([u - mass * g * np.array([0, 0, 1]), [-v @ v]]))
-    vals = {f"p[{i}]": p[i] for i in range(3)}
-    vals.update({f"v[{i}]": v[i] for i in range(3)})
-    vals.update({f"der(p)[{i}]": v[i] for i in range(3)})
-    vals.update({f"der(v)[{i}]": sol[i] for i in range(3)})
-    vals.update({f"der(p,2)[{i}]": sol[i] for i in range(3)})
-    vals["z"] = sol[3]
-    x, z = _values(r, vals)
-    res = ca.Function("g", [r.x, r.z, r.u, r.p], [r.alg])(x, z, u, r.p_values)
-    assert np.max(np.abs(np.asarray(res))) < 1e-12
+    for _ in range(5):
+        p, v, u = rng.standard_normal(3), rng.standard_normal(3), rng.standard_normal(3)
+        a, zval = rng.standard_normal(3), rng.standard_normal()
+        par = rng.uniform(0.5, 2.0, r.n_p)
+        mass, g = par[r.p_names.index("m")], par[r.p_names.index("g")]
+        K = np.block([[mass * np.eye(3), p[:, None]], [p[None, :], np.zeros((1, 1))]])
+        rhs = np.concatenate([u - mass * g * np.array([0, 0, 1]), [-v @ v]])
+        hand = K @ np.concatenate([a, [zval]]) - rhs
+        x = np.concatenate([p, v])
+        z = np.concatenate([a, [zval]])
+        got = np.asarray(f(x, z, u, par)).ravel()
+        assert np.max(np.abs(got - hand)) < 1e-12
+
+
+def test_delta_robot_minimal_index1_form():
+    """Delta robot (lecture L4): alpha' = omega and p' = v are eliminated; the invariants are
+    the rods and their first derivatives only, and DOF = 12 - 6 = 6 (3 arms: 3 positions and
+    3 velocities)."""
+    m = ex.delta_robot()
+    r0 = reduce_index(m, eliminate=False)
+    r = reduce_index(m)
+    assert (r0.nx, r0.nz, len(r0.invariant_names)) == (18, 15, 12)
+    assert (r.nx, r.nz) == (12, 9)
+    assert r.x_names == (
+        [f"alpha[{i}]" for i in range(3)] + [f"omega[{i}]" for i in range(3)]
+        + [f"p[{i}]" for i in range(3)] + [f"v[{i}]" for i in range(3)]
+    )
+    assert sorted(r.invariant_names) == sorted(
+        [f"rods[{i}]" for i in range(3)] + [f"d/dt rods[{i}]" for i in range(3)]
+    )
+    assert r.info["index1_check"] == "passed"
+    # the invariants are the same functions as before, with der(alpha) = omega, der(p) = v
+    vals = {}
+    rng = np.random.default_rng(5)
+    for nm in r.x_names + r.z_names:
+        vals[nm] = rng.standard_normal()
+    for i in range(3):
+        vals[f"der(alpha)[{i}]"] = vals[f"omega[{i}]"]
+        vals[f"der(p)[{i}]"] = vals[f"v[{i}]"]
+    u = rng.standard_normal(r.nu)
+    out = []
+    for rr in (r0, r):
+        x, z = _values(rr, vals)
+        inv = np.asarray(ca.Function("i", [rr.x, rr.z, rr.u, rr.p], [rr.invariants])(
+            x, z, u, rr.p_values)).ravel()
+        out.append(dict(zip(rr.invariant_names, inv, strict=True)))
+    for nm in r.invariant_names:
+        assert out[1][nm] == pytest.approx(out[0][nm], rel=1e-12, abs=1e-12)
+
+
+def _pendulum_velocity_split(scale: float = 2.0) -> Model:
+    """Planar pendulum (x'' = -T x, y'' = -T y - g, x^2 + y^2 = 1) with velocities
+    v1 = x', v2 = y' - x' written so that eliminating y' needs the eliminated x'."""
+    m = Model("split")
+    x, y = m.state("x"), m.state("y")
+    v1, v2 = m.state("v1"), m.state("v2")
+    T = m.algebraic("T")
+    g = m.parameter("g", 9.81)
+    m.equation(scale * m.der(x) - scale * v1, name="kx")  # coefficient 2, not 1
+    m.equation(m.der(y) - m.der(x) - v2, name="ky")  # y' = x' + v2: depends on x'
+    m.equation(m.der(v1) + T * x, name="nx")
+    m.equation(m.der(v2) + m.der(v1) + T * y + g, name="ny")
+    m.equation(x**2 + y**2 - 1.0, name="rod")
+    return m
+
+
+def test_elimination_in_dependency_order_matches_exact_solution():
+    """Eliminations that depend on each other (y' = x' + v2 with x' = v1) resolve to
+    y' = v1 + v2, and the result integrates to the exact pendulum (section 2, case B)."""
+    r = reduce_index(_pendulum_velocity_split())
+    assert r.x_names == ["x", "y", "v1", "v2"]
+    assert r.invariant_names == ["rod", "d/dt rod"]
+    assert sorted(r.z_names) == ["T", "der(v1)", "der(v2)"]
+    v1, v2 = (r.model.variables[n].sym for n in ("v1", "v2"))
+    f = ca.Function("f", [v1, v2], [r.variables["der(y)"] - (v1 + v2)])
+    assert float(f(0.3, -1.7)) == 0.0
+    x0, z0 = _values(r, {"x": 1.0, "y": 0.0, "der(v2)": -9.81})
+    xf, _ = _integrate(r, x0, z0, [0.0, 1.0, 10.0])
+    for col, t in enumerate((1.0, 10.0)):
+        assert abs(xf[r.x_names.index("x"), col] - CASE_B[t][0]) < 1e-8
+        assert abs(xf[r.x_names.index("y"), col] - CASE_B[t][1]) < 1e-8
+
+
+def test_nonconstant_coefficient_is_not_eliminated():
+    """x x' = ... is not explicit with a constant coefficient: der(x) stays a state."""
+    m = Model("nc")
+    x, v, T = m.state("x"), m.state("v"), m.algebraic("T")
+    m.equation((1 + x**2) * m.der(x) - v, name="k")
+    m.equation(m.der(v) - T, name="n")
+    m.equation(x - ca.sin(m.t), name="track")
+    r = reduce_index(m)
+    assert r.info["eliminated"] == []
+    assert "der(x)" in r.x_names and r.invariant_names == ["k", "track", "d/dt track"]
 
 
 def test_time_derivative_matches_hand_derivative():
@@ -374,7 +485,11 @@ def test_large_chain_is_fast():
     t0 = time.perf_counter()
     r = reduce_index(m)
     assert time.perf_counter() - t0 < 2.0
-    assert r.nz == 1000 and r.nx == 1200
+    # q' = v eliminated: states (q, v), algebraic (v', lambda), invariants: the N rods and
+    # their derivatives
+    assert (r.nx, r.nz, len(r.invariant_names)) == (800, 600, 400)
+    r0 = reduce_index(m, eliminate=False)
+    assert (r0.nx, r0.nz, len(r0.invariant_names)) == (1200, 1000, 800)
 
 
 def test_format_reduced_lists_equations_invariants_selection():

@@ -345,6 +345,42 @@ class Model:
             cache[order] = ca.vertcat(*[v.der(order) for v in self.unknown_variables])
         return cache[order][[int(j) for j in js]]
 
+    def symbols_at(self, js, orders) -> ca.SX:
+        """SX column of ``x_j^(o)`` for the pairs ``(j, o)`` in ``zip(js, orders)``, in that order.
+
+        ``orders`` is a sequence as long as ``js`` or one int for all. Consecutive elements of the
+        same variable and order are taken in one indexing operation (fast for long vectors);
+        only the derivative symbols asked for are created.
+
+        >>> m = Model("s"); p = m.state("p", 2); z = m.algebraic("z")
+        >>> print(m.symbols_at([0, 1, 2, 0], [1, 1, 0, 0]))
+        [der(p)[0], der(p)[1], z, p[0]]
+        """
+        js = [int(j) for j in js]
+        if isinstance(orders, (int, np.integer)):
+            orders = [int(orders)] * len(js)
+        orders = [int(o) for o in orders]
+        if len(orders) != len(js):
+            raise ModelError(
+                f"model {self.name!r}: symbols_at needs one order per unknown "
+                f"({len(js)} unknowns, {len(orders)} orders)"
+            )
+        if not js:
+            return ca.SX(0, 1)
+        unknowns = self.unknowns
+        parts = []
+        run_var, run_order, run_idx = None, None, []
+        for j, o in zip(js, orders, strict=True):
+            var, i = unknowns[j]
+            if var is run_var and o == run_order:
+                run_idx.append(i)
+                continue
+            if run_idx:
+                parts.append(run_var.der(run_order)[run_idx])
+            run_var, run_order, run_idx = var, o, [i]
+        parts.append(run_var.der(run_order)[run_idx])
+        return ca.vertcat(*parts)
+
     def lookup(self, sym: ca.SX) -> tuple[Variable, int, int] | None:
         """(variable, element, order) of a scalar symbol of this model, or None."""
         return self._lookup.get(sym.element_hash())

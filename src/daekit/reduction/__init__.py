@@ -1,6 +1,7 @@
 """Index reduction: any-index model -> index-1 DAE with its consistency conditions.
 
-- :func:`reduce_index` -- Pryce's differentiation scheme, or dummy derivatives.
+- :func:`reduce_index` -- Pryce's differentiation scheme (with explicit derivatives such as
+  ``p' = v`` eliminated, :mod:`daekit.reduction.eliminate`), or dummy derivatives.
 - :func:`dummy_derivatives`, :func:`reselect`, :func:`selection_condition` -- state selection.
 - :func:`baumgarte`, :func:`ggl` -- stabilizations of a :class:`~daekit.ReducedDAE`.
 - :func:`time_derivative` -- total time derivative of a model expression.

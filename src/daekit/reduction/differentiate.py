@@ -124,29 +124,10 @@ class Expansion:
         return self.levels[k][self.pos[k][np.asarray(rows, dtype=np.int64)].tolist()]
 
     def unknown(self, order_of, js) -> ca.SX:
-        """Symbols ``x_j^(order_of[j])`` for unknowns ``js``, vectorized per variable."""
-        return _gather(self.unknowns, js, order_of)
-
-
-def _gather(unknowns, js, order_of) -> ca.SX:
-    """vertcat of x_j^(order_of(j)) for j in js, keeping the order of ``js``."""
-    js = list(js)
-    if not js:
-        return ca.SX(0, 1)
-    parts = []
-    # group consecutive runs with the same variable and order, index each run at once
-    run_var, run_order, run_idx = None, None, []
-    for j in js:
-        var, i = unknowns[j]
-        o = int(order_of[j]) if not callable(order_of) else int(order_of(j))
-        if var is run_var and o == run_order:
-            run_idx.append(i)
-        else:
-            if run_idx:
-                parts.append(run_var.der(run_order)[run_idx])
-            run_var, run_order, run_idx = var, o, [i]
-    parts.append(run_var.der(run_order)[run_idx])
-    return ca.vertcat(*parts)
+        """Symbols ``x_j^(order_of[j])`` for unknowns ``js`` (``order_of``: array or function)."""
+        js = [int(j) for j in js]
+        orders = [order_of(j) if callable(order_of) else order_of[j] for j in js]
+        return self.model.symbols_at(js, orders)
 
 
 def sigma_offsets(model: Model, validate: bool = True):

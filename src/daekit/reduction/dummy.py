@@ -51,8 +51,8 @@ from .differentiate import derivative_name
 from .reduce import (
     _all_symbols,
     _assemble,
-    _gather_pairs,
     _invariants,
+    _pair_symbols,
     _states,
     _top_equations,
     amended_expansion,
@@ -196,10 +196,10 @@ def dummy_derivatives(
         blocks.append((R, C, cols))
         selected = S
 
-    states = _states(ex, dummy=lambda j, k: (j, k) in dummy)
+    states = _states(ex, skip=lambda j, k: (j, k) in dummy)
     dpairs = sorted(dummy, key=lambda jk: (jk[1], jk[0]))
     zpairs = [(j, int(d[j])) for j in range(n)] + dpairs
-    z = _gather_pairs(ex, [j for j, _ in zpairs], [k for _, k in zpairs], None)
+    z = _pair_symbols(ex, zpairs)
     z_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in zpairs]
     alg = ca.vertcat(*ex.levels)
     alg_names = [derivative_name(eq_names[i], k) for k, rk in enumerate(ex.rows) for i in rk]

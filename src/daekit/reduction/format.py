@@ -38,6 +38,12 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
         out.append(f"  (index {r.info['index']} form)")
     for note in r.info.get("amendments", []):
         out.append(f"  note: {note}")
+    elim = r.info.get("eliminated") or []
+    if elim:
+        shown = [f"{e['variable']} = {_expr(e['expression'], 40)} ({e['equation']})"
+                 for e in elim[:max_rows]]
+        more = f", ... ({len(elim) - max_rows} more)" if len(elim) > max_rows else ""
+        out.append(f"  eliminated (given explicitly by an equation): {', '.join(shown)}{more}")
 
     def section(title, rows):
         out.append("")

@@ -11,7 +11,14 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
    (for an algebraic variable, ``d_j = 0``: the variable itself). Algebraic equations:
    ``0 = F_i^(c_i)``; their Jacobian with respect to ``z`` is Pryce's system Jacobian.
 4. Invariants: ``F_i^(k)`` for ``k < c_i``, named ``"rod"``, ``"d/dt rod"``, ...
-5. Index-1 check: ``d alg / d z`` is evaluated (sparse) at random points and must be
+5. Elimination (default, ``eliminate=True``; :mod:`daekit.reduction.eliminate`): an equation
+   that says ``a x_j^(k) = g`` with a constant ``a`` and ``x_j^(k)`` a would-be state (``p' = v``)
+   defines ``x_j^(k)`` and its derivatives; they are replaced by ``g/a`` and its derivatives,
+   so they are neither states nor algebraic unknowns, and the equation drops out of the
+   invariants. The first-order 3D pendulum then has the lecture's index-1 form: states
+   ``(p, v)``, algebraic ``(v', z)``, invariants ``rod`` and ``d/dt rod``; ``r.variables``
+   still gives ``"der(p)"`` (as the expression ``v``).
+6. Index-1 check: ``d alg / d z`` is evaluated (sparse) at random points and must be
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
 
@@ -46,6 +53,7 @@ from ..model import Model, element_name
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from .differentiate import Expansion, derivative_name, expand
+from .eliminate import Elimination, find_eliminations
 
 __all__ = ["reduce_index", "check_index1"]
 
@@ -58,6 +66,7 @@ def reduce_index(
     point: dict | None = None,
     check: bool = True,
     seed: int = 0,
+    eliminate: bool = True,
 ) -> ReducedDAE:
     """Reduce a model of any index to an index-1 semi-explicit DAE with its invariants.
 
@@ -77,6 +86,11 @@ def reduce_index(
         Check that ``d alg / d z`` is nonsingular (index 1) at random points.
     seed : int
         Seed of the random points.
+    eliminate : bool
+        For ``"differentiate"``: eliminate derivatives that an equation gives explicitly
+        (``p' = v``; see :mod:`daekit.reduction.eliminate`), the minimal index-1 form.
+        ``False`` gives Pryce's scheme as it is (every ``x_j^(k)``, ``k < d_j``, a state).
+        ``r.info["eliminated"]`` lists what was eliminated, by which equation, as what.
 
     Returns
     -------
@@ -112,13 +126,19 @@ def reduce_index(
     ex, amendments = amended_expansion(model, seed=seed)
     n = ex.n
     c, d = ex.c, ex.d
-    states = _states(ex, dummy=None)
-    highest = list(range(n))
-    z = ex.unknown(d, highest)
-    z_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], int(d[j])) for j in highest]
+    el = find_eliminations(ex) if eliminate else Elimination()
+    gone = set(el.pairs)
+    gone_eqs = set(el.equations)
+    states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
+    zpairs = [(j, int(d[j])) for j in range(n) if (j, int(d[j])) not in gone]
+    z = _pair_symbols(ex, zpairs)
+    z_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in zpairs]
+    rows = [i for i in range(n) if i not in gone_eqs]
     alg = _top_equations(ex)
-    alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in range(n)]
-    inv, inv_names, chains = _invariants(ex)
+    if gone_eqs:
+        alg = alg[rows]
+    alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in rows]
+    inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
     r = _assemble(
         ex,
         states=states,
@@ -130,10 +150,23 @@ def reduce_index(
         invariant_names=inv_names,
         method="differentiate",
     )
+    if el.pairs:
+        r.ode, r.alg, r.invariants = el.substitute([r.ode, r.alg, r.invariants])
+        for (j, k), e in zip(el.pairs, ca.vertsplit(el.defs), strict=True):
+            var, i = ex.unknowns[j]
+            r.variables[var.element(i, k)] = e
     r.info["alg_names"] = alg_names
     r.info["chains"] = chains
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
+    r.info["eliminated"] = [
+        {
+            "variable": ex.unknowns[j][0].element(ex.unknowns[j][1], k),
+            "equation": ex.equation_names[i],
+            "expression": r.variables[ex.unknowns[j][0].element(ex.unknowns[j][1], k)],
+        }
+        for i, j, k in zip(el.equations, el.unknowns, el.orders, strict=True)
+    ]
     if check:
         check_index1(r, seed=seed)
     return r
@@ -143,7 +176,7 @@ def reduce_index(
 def _all_symbols(ex: Expansion):
     """All unknown symbols up to order d_j and control symbols up to the needed order."""
     pairs = [(j, k) for j in range(ex.n) for k in range(int(ex.d[j]) + 1)]
-    X = _gather_pairs(ex, [j for j, _ in pairs], [k for _, k in pairs], None)
+    X = _pair_symbols(ex, pairs)
     U = [var.der(k) for var in ex.model.controls
          for k in range(ex.control_orders.get(var.name, 0) + 1)]
     return X, (ca.vertcat(*U) if U else ca.SX(0, 1))
@@ -254,11 +287,11 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
 
 
 # ---------------------------------------------------------------------------- building blocks
-def _states(ex: Expansion, dummy):
-    """States x_j^(k), k < d_j (not dummies), grouped by variable then order; and their ODEs.
+def _states(ex: Expansion, skip):
+    """States x_j^(k), k < d_j, grouped by variable then order.
 
-    ``dummy``: None or a boolean function (j, k) -> the derivative is a dummy (algebraic).
-    Returns the list of (j, k).
+    ``skip``: None or a boolean function (j, k) -> the derivative is not a state (a dummy
+    derivative, or an eliminated one). Returns the list of (j, k).
     """
     out = []
     j0 = 0
@@ -268,24 +301,14 @@ def _states(ex: Expansion, dummy):
         top = max((int(ex.d[j]) for j in js), default=0)
         for k in range(top):
             for j in js:
-                if ex.d[j] > k and (dummy is None or not dummy(j, k)):
+                if ex.d[j] > k and (skip is None or not skip(j, k)):
                     out.append((j, k))
     return out
 
 
-def _gather_pairs(ex, js, orders, _):
-    parts = []
-    run_var, run_order, run_idx = None, None, []
-    for j, o in zip(js, orders, strict=True):
-        var, i = ex.unknowns[j]
-        if var is run_var and o == run_order:
-            run_idx.append(i)
-        else:
-            if run_idx:
-                parts.append(run_var.der(run_order)[run_idx])
-            run_var, run_order, run_idx = var, o, [i]
-    parts.append(run_var.der(run_order)[run_idx])
-    return ca.vertcat(*parts)
+def _pair_symbols(ex: Expansion, pairs, shift: int = 0) -> ca.SX:
+    """Symbols ``x_j^(k + shift)`` for the pairs ``(j, k)``, in order."""
+    return ex.model.symbols_at([j for j, _ in pairs], [k + shift for _, k in pairs])
 
 
 def _top_equations(ex: Expansion) -> ca.SX:
@@ -303,12 +326,20 @@ def _top_equations(ex: Expansion) -> ca.SX:
     return parts[idx_of.tolist()]
 
 
-def _invariants(ex: Expansion):
-    """F_i^(k), k < c_i, ordered by equation then k; their names; and the chains."""
+def _invariants(ex: Expansion, skip=()):
+    """F_i^(k), k < c_i, ordered by equation then k; their names; and the chains.
+
+    Equations in ``skip`` (eliminated) are left out; a chain's ``"alg"`` is the row of its
+    top equation ``F_i^(c_i)`` among the algebraic equations that are kept.
+    """
     n = ex.n
     offs = np.cumsum([0] + [len(r) for r in ex.rows])
     idx, names, chains = [], [], []
+    alg_row = 0
     for i in range(n):
+        if i in skip:
+            continue
+        alg_row += 1
         ci = int(ex.c[i])
         if ci == 0:
             continue
@@ -317,7 +348,9 @@ def _invariants(ex: Expansion):
             chain.append(len(idx))
             idx.append(int(offs[k] + ex.pos[k][i]))
             names.append(derivative_name(ex.equation_names[i], k))
-        chains.append({"equation": ex.equation_names[i], "row": i, "invariants": chain, "alg": i})
+        chains.append(
+            {"equation": ex.equation_names[i], "row": i, "invariants": chain, "alg": alg_row - 1}
+        )
     allrows = ca.vertcat(*ex.levels)
     inv = allrows[idx] if idx else ca.SX(0, 1)
     return inv, names, chains
@@ -326,15 +359,9 @@ def _invariants(ex: Expansion):
 def _assemble(ex, *, states, ode, z, z_names, alg, invariants, invariant_names, method):
     """ReducedDAE from the pieces; fills u (with input derivatives), p and the variable map."""
     model = ex.model
-    x = _gather_pairs(ex, [j for j, _ in states], [k for _, k in states], None) if states else (
-        ca.SX(0, 1)
-    )
+    x = _pair_symbols(ex, states)
     if ode is None:
-        ode = (
-            _gather_pairs(ex, [j for j, _ in states], [k + 1 for _, k in states], None)
-            if states
-            else ca.SX(0, 1)
-        )
+        ode = _pair_symbols(ex, states, shift=1)
     x_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in states]
     # inputs: the controls, then their derivatives up to the order needed
     u_parts, u_names, input_derivatives = [], [], []

@@ -222,3 +222,180 @@ def test_examples_solve_and_plot(tmp_path):
     assert sol["p"][-1] == pytest.approx(home["p"], abs=1e-6)  # a dropped condition holds
     E.delta_robot_figure(sol, str(tmp_path / "delta.png"))
     assert (tmp_path / "crane.png").stat().st_size > 0 and (tmp_path / "delta.png").exists()
+
+
+# ---------------------------------------------------------------------------- multiple shooting
+def swing_both(intervals):
+    out = {}
+    for method in ("collocation", "shooting"):
+        ocp = swing_ocp(intervals=intervals, controls="constant")
+        ocp.method = method
+        out[method] = ocp.solve()
+        assert out[method].success, out[method].report
+    return out["collocation"], out["shooting"]
+
+
+def test_shooting_agrees_with_collocation():
+    """Both optimize over the same piecewise constant controls on the same N intervals, so the
+    control discretization's error (against the continuous optimum: ~1e-2 relative at N = 20,
+    O(h)) is common to both and cancels. What separates them is how the dynamics are
+    integrated: IDAS to 1e-10 for shooting, Radau IIA degree 3 (order 5 at the interval ends)
+    for collocation. The difference must therefore be far below 1e-4 and shrink like h^5."""
+    ref = pontryagin_swing()
+    c20, s20 = swing_both(20)
+    c40, s40 = swing_both(40)
+    d20 = abs(c20.objective - s20.objective) / s20.objective
+    d40 = abs(c40.objective - s40.objective) / s40.objective
+    assert d20 < 1e-5 and d40 < 1e-6
+    assert d20 / d40 > 16  # order >= 4 (measured ~32: order 5)
+    # the control discretization's own error is much larger and common to both
+    assert abs(s20.objective - ref) / ref > 100 * d20
+    assert abs(s40.objective - ref) < abs(s20.objective - ref)
+    # the shooting grid: the interval boundaries; the end state as asked; invariants hold
+    assert s20.t == pytest.approx(np.linspace(0, T_SWING, 21))
+    assert s20["p"][-1] == pytest.approx([np.sin(TH1), -np.cos(TH1)], abs=1e-8)
+    assert np.max(np.abs(s20.invariants)) < 1e-8  # integrated to 1e-10, not to the stage order
+    assert "multiple shooting on IDAS" in s20.report and "Dropped" in s20.report
+    assert s20.stats["method"] == "shooting" and s20.stats["boundary_rank"] == 4
+    # controls: one value per interval, the same as the collocation's to the truncation error
+    assert s20.controls["u"][1:] == pytest.approx(c20.controls["u"][3::3], abs=1e-4)
+    # finer output by simulating with the optimal controls: continuous at the nodes
+    fine = s20.simulate(points_per_interval=4)
+    assert fine.t.size == 81 and fine.stats["node_mismatch"] < 1e-8
+    assert fine["p"][::4] == pytest.approx(s20["p"], abs=1e-8)
+    # for collocation the same re-simulation estimates its discretization error
+    assert 1e-9 < c20.simulate(2).stats["node_mismatch"] < 1e-5
+
+
+def test_shooting_crane_minimum_time_matches_collocation():
+    from daekit.examples import ocp_examples as E
+
+    col = E.crane_ocp(intervals=30).solve()
+    sh = E.crane_ocp(intervals=30, method="shooting").solve()  # cold start: own simulation
+    assert col.success and sh.success, sh.report
+    # required: within 1 %; the shared control space makes it far closer (measured 7e-9)
+    assert abs(sh.T - col.T) / col.T < 1e-4
+    assert np.max(np.abs(sh["F"])) <= 5.0 + 1e-7  # IPOPT relaxes bounds by 1e-8 relative
+    assert sh["x"][-1] == pytest.approx(2.0, abs=1e-7) and sh["y"][-1] == pytest.approx(-1, abs=1e-7)
+    assert sh.boundary.rank == 8 and sh.boundary.n_conditions == 12
+
+
+def test_shooting_rejects_polynomial_controls():
+    m, p, v, u = planar_pendulum_with_force()
+    with pytest.raises(OCPError, match="piecewise constant"):
+        OCP(m, method="shooting", controls="polynomial")
+    with pytest.raises(OCPError, match="'collocation' or 'shooting'"):
+        OCP(m, method="pseudospectral")
+
+
+# ---------------------------------------------------------------------------- initial guesses
+def _swing_simulation(n=101):
+    m, p, v, u = planar_pendulum_with_force()
+    r = dk.reduce_index(m)
+    init = dk.initialize(r, guess={"p": [0, -L], "v": [0, 0]}, fixed={"p[0]": 0.0, "v[0]": 0.0})
+    # a feedforward of the user's choice (it does not reach the target: only a guess)
+    return dk.simulate(r, np.linspace(0, T_SWING, n), init,
+                       inputs={"u": lambda t: 1.5 * np.sin(np.pi * t / T_SWING) - 0.5})
+
+
+@pytest.mark.parametrize("method", ["collocation", "shooting"])
+def test_guess_from_simulation(method):
+    traj = _swing_simulation()
+    ocp = swing_ocp(intervals=20, controls="constant")
+    ocp.method = method
+    # the NLP starts at the simulation interpolated onto its grid (IPOPT stopped at once)
+    ocp.solver_options["max_iter"] = 0
+    start = ocp.solve(guess=traj)
+    for name in ("p", "v", "z"):
+        expect = np.column_stack([np.interp(start.t, traj.t, c)
+                                  for c in np.atleast_2d(traj[name].T)])
+        assert start[name].reshape(expect.shape) == pytest.approx(expect, abs=1e-12)
+    if method == "shooting":  # one control per interval: the simulated one at its end
+        tk = np.linspace(0, T_SWING, 21)[1:]
+        expect = np.interp(tk, traj.t, traj["u"])
+        assert start.controls["u"][1:] == pytest.approx(expect, abs=1e-12)
+    del ocp.solver_options["max_iter"]
+    sol = ocp.solve(guess=traj)
+    cold = ocp.solve()
+    assert sol.success, sol.report
+    assert sol.objective == pytest.approx(cold.objective, rel=1e-8)
+    assert "interpolated from a simulation" in sol.report
+
+
+def test_guess_from_other_solution_and_free_final_time_from_trajectory():
+    # a collocation solution starts a shooting solve (interpolated by names): fewer iterations
+    ocp = swing_ocp(intervals=20, controls="constant")
+    col = ocp.solve()
+    sh_ocp = swing_ocp(intervals=20, controls="constant")
+    sh_ocp.method = "shooting"
+    cold = sh_ocp.solve()
+    warm = sh_ocp.solve(guess=col)
+    assert warm.success and warm.objective == pytest.approx(cold.objective, rel=1e-8)
+    assert warm.stats["iter_count"] < cold.stats["iter_count"]
+    assert "previous solution (collocation)" in warm.report
+    # a free final time takes the trajectory's horizon as its guess
+    m = dk.Model("double_integrator")
+    s = m.state("s")
+    u = m.control("u")
+    m.equation(m.der(s, 2) - u, name="newton")
+    traj = dk.Trajectory(np.linspace(0, 2.5, 6), {"s": np.linspace(0, 1, 6),
+                                                  "der(s)": np.full(6, 0.4), "u": np.zeros(6)})
+    ocp = OCP(m, t_final=Free(0.5, 5.0, 4.0), intervals=10, degree=2,
+              solver_options={"max_iter": 0})
+    ocp.minimize(final=m.t).bound("u", -1, 1)
+    ocp.initial({"s": 0.0, "der(s)": 0.0}).final({"s": 1.0, "der(s)": 0.0})
+    assert ocp.solve(guess=traj).T == pytest.approx(2.5)
+    with pytest.raises(OCPError, match="Trajectory"):
+        ocp.solve(guess=[1, 2, 3])
+
+
+# ---------------------------------------------------------------------------- free parameters
+@pytest.mark.parametrize("method", ["collocation", "shooting"])
+def test_free_parameter_gives_the_exact_pendulum_period(method):
+    """Which gravity g makes the pendulum (L = 1) released at rest from 60 degrees swing to -60
+    degrees, at rest, in exactly 1 s, with no force? Half the period 4 K(k^2) sqrt(L/g),
+    k = sin(30 deg): g = L (2 K(1/4) / 1 s)^2 = 11.3672... (the small-angle formula would say
+    pi^2 = 9.87). The OCP: minimize int u^2 with g free; the optimum is u = 0 and that g."""
+    from scipy.special import ellipk
+
+    th0, tf = np.pi / 3, 1.0
+    g_exact = L * (2 * ellipk(np.sin(th0 / 2) ** 2) / tf) ** 2
+    m, p, v, u = planar_pendulum_with_force()
+    ocp = OCP(m, t_final=tf, intervals=20, degree=3, method=method)
+    ocp.minimize(integral=u**2)
+    ocp.free_parameter("g", 5.0, 20.0, guess=9.81)
+    ocp.initial({"p": [np.sin(th0), -np.cos(th0)], "v": [0.0, 0.0]})
+    ocp.final({"p[0]": -np.sin(th0), "der(p)[0]": 0.0})
+    sol = ocp.solve()
+    assert sol.success, sol.report
+    assert sol.parameters["g"] == pytest.approx(g_exact, rel=1e-6)
+    assert sol.objective < 1e-10 and np.max(np.abs(sol["u"])) < 1e-5
+    assert sol.parameters["L"] == L  # fixed ones stay
+
+
+# ---------------------------------------------------------------------------- stats, report, output
+@pytest.mark.parametrize("method", ["collocation", "shooting"])
+def test_solve_prints_nothing_and_reports(method, capfd):
+    m, p, v, u = planar_pendulum_with_force()
+    ocp = OCP(m, t_final=1.0, intervals=10, degree=2, method=method)
+    ocp.minimize(integral=u**2).bound("u", -1, 1)
+    ocp.initial({"p": [0.0, -1.0], "v": [0.0, 0.0]})
+    ocp.final({"p[0]": 0.9})  # out of reach with |u| <= 1 in 1 s: IPOPT fails
+    bad = ocp.solve()
+    ocp._bc_user.pop()
+    ocp.final({"p[0]": 0.1})
+    good = ocp.solve()
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""
+    assert not bad.success and "did not succeed" in bad.report
+    assert good.success
+    st = good.stats
+    for key in ("iter_count", "return_status", "t_solve", "t_build", "t_total", "n_variables",
+                "n_constraints", "method", "transcription", "intervals", "guess",
+                "max_constraint_violation", "boundary_rank", "max_invariant_t0"):
+        assert key in st, key
+    assert st["max_constraint_violation"] < 1e-8 and st["max_invariant_t0"] < 1e-8
+    assert st["method"] == method and st["intervals"] == 10
+    name = {"collocation": "Radau IIA collocation", "shooting": "multiple shooting on IDAS"}
+    assert "Solve_Succeeded" in good.report and name[method] in good.report
+    assert bad.status not in ("Solve_Succeeded", "Infeasible_Boundary_Conditions")  # IPOPT ran

@@ -581,6 +581,7 @@ class OCP:
         viol_g = np.maximum(np.maximum(lbg - gopt, gopt - ubg), 0.0)
         viol_x = np.maximum(np.maximum(lbx - Vopt, Vopt - ubx), 0.0)
         stats.update({
+            "objective": float(res["f"]),
             "method": self.method,
             "transcription": tr.method,
             "intervals": self.intervals,

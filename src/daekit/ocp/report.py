@@ -77,6 +77,24 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
         f"IPOPT: {status} after {stats.get('iter_count', '?')} iterations "
         f"({stats['t_total']:.3g} s in all, {stats['t_build']:.3g} s to build the NLP)."
     )
+    fr, _X, _Z, _W, T_opt, P_opt = (np.asarray(v) for v in tr.grid(V))
+    P_opt = P_opt.ravel()
+    extra = [f"Objective {float(stats.get('objective', np.nan)):.10g}"] if "objective" in stats \
+        else []
+    if ocp._T_free is not None:
+        extra.append(f"final time T = {float(T_opt.ravel()[0]):.8g}")
+    free = [f"{n} = {P_opt[i]:.8g}" for i, n in enumerate(a.p_names) if n in ocp._free_params]
+    if free:
+        extra.append(f"free parameters {', '.join(free)}")
+    if "max_constraint_violation" in stats:
+        extra.append(f"largest constraint violation {stats['max_constraint_violation']:.1e}")
+    if "max_invariant" in stats:
+        extra.append(
+            f"invariants |.| <= {stats['max_invariant_t0']:.1e} at t = 0 and "
+            f"<= {stats['max_invariant']:.1e} on the grid"
+        )
+    if extra:
+        lines.append("; ".join(extra) + ".")
     infeas = []
     if not success:
         infeas = [] if pre else _violations(tr, g, lbg, ubg)

@@ -52,7 +52,7 @@ from .reduce import (
     _all_symbols,
     _assemble,
     _invariants,
-    _pair_symbols,
+    _pair_names,
     _states,
     _top_equations,
     amended_expansion,
@@ -161,7 +161,6 @@ def dummy_derivatives(
             "give a point inside the model's domain: reduce_index(model, 'dummy_derivatives', "
             "point={...})"
         )
-    names = ex.unknown_names
     eq_names = ex.equation_names
     selected = np.arange(n)
     dummy: set[tuple[int, int]] = set()
@@ -199,26 +198,13 @@ def dummy_derivatives(
     states = _states(ex, skip=lambda j, k: (j, k) in dummy)
     dpairs = sorted(dummy, key=lambda jk: (jk[1], jk[0]))
     zpairs = [(j, int(d[j])) for j in range(n)] + dpairs
-    z = _pair_symbols(ex, zpairs)
-    z_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in zpairs]
     alg = ca.vertcat(*ex.levels)
     alg_names = [derivative_name(eq_names[i], k) for k, rk in enumerate(ex.rows) for i in rk]
     inv, inv_names, chains = _invariants(ex)
-    r = _assemble(
-        ex,
-        states=states,
-        ode=None,
-        z=z,
-        z_names=z_names,
-        alg=alg,
-        invariants=inv,
-        invariant_names=inv_names,
-        method="dummy_derivatives",
-    )
-    del names
+    r = _assemble(ex, states, zpairs, alg, inv, inv_names, "dummy_derivatives")
     r.state_selection = {
         "states": list(r.x_names),
-        "dummies": [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in dpairs],
+        "dummies": _pair_names(ex, dpairs),
         "stages": stages,
         "condition": max([st["condition"] for st in stages], default=1.0),
         "point": dict(point) if point else None,

@@ -131,41 +131,24 @@ def reduce_index(
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
     zpairs = [(j, int(d[j])) for j in range(n) if (j, int(d[j])) not in gone]
-    z = _pair_symbols(ex, zpairs)
-    z_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in zpairs]
     rows = [i for i in range(n) if i not in gone_eqs]
     alg = _top_equations(ex)
     if gone_eqs:
         alg = alg[rows]
     alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in rows]
     inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
-    r = _assemble(
-        ex,
-        states=states,
-        ode=None,
-        z=z,
-        z_names=z_names,
-        alg=alg,
-        invariants=inv,
-        invariant_names=inv_names,
-        method="differentiate",
-    )
+    r = _assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
     if el.pairs:
         r.ode, r.alg, r.invariants = el.substitute([r.ode, r.alg, r.invariants])
-        for (j, k), e in zip(el.pairs, ca.vertsplit(el.defs), strict=True):
-            var, i = ex.unknowns[j]
-            r.variables[var.element(i, k)] = e
+        for nm, e in zip(_pair_names(ex, el.pairs), ca.vertsplit(el.defs), strict=True):
+            r.variables[nm] = e
     r.info["alg_names"] = alg_names
     r.info["chains"] = chains
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
     r.info["eliminated"] = [
-        {
-            "variable": ex.unknowns[j][0].element(ex.unknowns[j][1], k),
-            "equation": ex.equation_names[i],
-            "expression": r.variables[ex.unknowns[j][0].element(ex.unknowns[j][1], k)],
-        }
-        for i, j, k in zip(el.equations, el.unknowns, el.orders, strict=True)
+        {"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]}
+        for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
     if check:
         check_index1(r, seed=seed)
@@ -356,13 +339,21 @@ def _invariants(ex: Expansion, skip=()):
     return inv, names, chains
 
 
-def _assemble(ex, *, states, ode, z, z_names, alg, invariants, invariant_names, method):
-    """ReducedDAE from the pieces; fills u (with input derivatives), p and the variable map."""
+def _pair_names(ex: Expansion, pairs) -> list[str]:
+    """Original names ``"der(p)[0]"`` of the pairs ``(j, k)``."""
+    return [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in pairs]
+
+
+def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
+    """ReducedDAE from the pieces: states ``x_j^(k)`` (pairs) with ``(x_j^(k))' = x_j^(k+1)``,
+    algebraic unknowns (pairs), equations; fills u (with input derivatives), p and the
+    variable map."""
     model = ex.model
     x = _pair_symbols(ex, states)
-    if ode is None:
-        ode = _pair_symbols(ex, states, shift=1)
-    x_names = [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in states]
+    ode = _pair_symbols(ex, states, shift=1)
+    x_names = _pair_names(ex, states)
+    z = _pair_symbols(ex, zpairs)
+    z_names = _pair_names(ex, zpairs)
     # inputs: the controls, then their derivatives up to the order needed
     u_parts, u_names, input_derivatives = [], [], []
     for var in model.controls:

@@ -399,3 +399,29 @@ def test_solve_prints_nothing_and_reports(method, capfd):
     name = {"collocation": "Radau IIA collocation", "shooting": "multiple shooting on IDAS"}
     assert "Solve_Succeeded" in good.report and name[method] in good.report
     assert bad.status not in ("Solve_Succeeded", "Infeasible_Boundary_Conditions")  # IPOPT ran
+
+
+def test_shooting_path_constraint_against_analytic_optimum():
+    """min int u^2, s'' = u, s: 0 -> 1 at rest in T = 1, with the speed limit s' <= V (a path
+    constraint, imposed at the shooting nodes). For 1 < V < 1.5 the optimum accelerates with
+    u linear to 0 on [0, t1], cruises at s' = V, and brakes symmetrically: t1 = 3 (V - 1)/(2 V),
+    J = 16 V^3 / (9 (V - 1)) (15.36 for V = 1.2; 12 without the limit). Piecewise constant
+    controls approximate the linear arcs to O(h^2) in the objective."""
+    V = 1.2
+    J_exact = 16 * V**3 / (9 * (V - 1))
+    errs = []
+    for N in (20, 40):
+        m = dk.Model("double_integrator")
+        s = m.state("s")
+        u = m.control("u")
+        m.equation(m.der(s, 2) - u, name="newton")
+        ocp = OCP(m, t_final=1.0, intervals=N, method="shooting")
+        ocp.minimize(integral=u**2).constrain(m.der(s), -np.inf, V, name="speed limit")
+        ocp.initial({"s": 0, "der(s)": 0}).final({"s": 1, "der(s)": 0})
+        sol = ocp.solve()
+        assert sol.success, sol.report
+        errs.append((sol.objective - J_exact) / J_exact)
+        assert np.max(sol["der(s)"]) <= V + 1e-7
+        # s' is piecewise linear between the nodes: the limit holds in between as well
+        assert np.max(sol.simulate(5)["der(s)"]) <= V + 1e-7
+    assert 0 < errs[1] < errs[0] < 1.5e-2 and errs[0] / errs[1] > 3.5  # second order

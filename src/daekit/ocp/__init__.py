@@ -119,8 +119,9 @@ class OCP:
         shooting with one IDAS integrator per interval (:mod:`daekit.ocp.shooting`; CVODES
         when there are no algebraic unknowns). Shooting integrates to the integrator's
         tolerance on the intervals and imposes bounds and path constraints at the interval
-        boundaries only; it uses a limited-memory Hessian unless
-        ``solver_options={"hessian_approximation": "exact"}``.
+        boundaries only; it uses a limited-memory Hessian (cheap iterations) unless
+        ``solver_options={"hessian_approximation": "exact"}`` (second-order sensitivities:
+        costlier iterations, often far fewer of them on hard problems such as periodic orbits).
     controls : {"constant", "polynomial"}
         Piecewise constant controls, or piecewise polynomial of degree ``degree - 1``
         (values at the Radau points; collocation only).
@@ -674,7 +675,9 @@ class OCPSolution:
         s._N = ocp.intervals
         s._ncoef = tr.ncoef
         s._node_index = list(tr.node_index) if tr.node_index is not None else None
-        s._Wint = np.asarray(tr.controls(V)).reshape(a.nw, -1) if tr.controls is not None else None
+        s._Wint = None
+        if tr.controls is not None:
+            s._Wint = np.asarray(tr.controls(V)).reshape(a.nw, ocp.intervals * tr.ncoef)
         s._integrator_options = dict(ocp.integrator_options)
         if s.invariants.size:
             stats["max_invariant_t0"] = float(np.max(np.abs(s.invariants[0])))
@@ -754,7 +757,7 @@ class OCPSolution:
             basis = np.array([[np.prod([(sv - tau[q]) / (tau[r] - tau[q])
                                         for q in range(nc) if q != r]) for r in range(nc)]
                               for sv in svals])
-        Wd = np.einsum("jr,wkr->wkj", basis, self._Wint.reshape(a.nw, N, nc)).reshape(a.nw, -1)
+        Wd = np.einsum("jr,wkr->wkj", basis, self._Wint.reshape(a.nw, N, nc)).reshape(a.nw, N * n)
         t = np.concatenate([[0.0], (np.arange(N).reshape(-1, 1) + svals).ravel() * h])
         X = np.hstack([self._X[:, :1], xf])
         Z = np.hstack([self._Z[:, :1], zf])

@@ -141,8 +141,8 @@ def make_guess(ocp, guess) -> Guess:
             try:
                 with quiet():
                     res = sim(x0=x, z0=z, p=np.concatenate([wk, p, [tk, h]]))
-                xf = np.asarray(res["xf"]).reshape(a.nx, -1)
-                zf = np.asarray(res["zf"]).reshape(a.nz, -1)
+                xf = np.asarray(res["xf"]).reshape(a.nx, tau.size)
+                zf = np.asarray(res["zf"]).reshape(a.nz, tau.size)
                 if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(zf))):
                     raise RuntimeError("non-finite values")
                 if np.max(np.abs(xf), initial=0.0) > 1e6:
@@ -163,9 +163,17 @@ def make_guess(ocp, guess) -> Guess:
     note = "simulation with the guessed controls"
     if failed is not None:
         note += f" (stopped at t = {failed[0]:.4g}; held constant afterwards)"
-    fun = _interp_fun(np.array(ts), np.array(Xs).T.reshape(a.nx, -1),
-                      np.array(Zs).T.reshape(a.nz, -1), np.array(Ws).T.reshape(a.nw, -1))
+    def cols(vs, n):  # list of (n,) arrays -> (n, len) even when n == 0
+        return np.asarray(vs, float).reshape(len(vs), n).T
+
+    fun = _interp_fun(np.array(ts), cols(Xs, a.nx), cols(Zs, a.nz), cols(Ws, a.nw))
     return Guess(fun, T, p, note=note)
+
+
+def seg(v, start: int, stop: int):
+    """``v[start:stop]`` as a column, empty ``(0, 1)`` when ``start == stop`` (CasADi slices a
+    1-by-1 symbol into a 1-by-0 row)."""
+    return v[start:stop] if stop > start else type(v)(0, 1)
 
 
 def _from_values(ocp, t: np.ndarray, t_end: float, values: dict, note: str) -> Guess:
@@ -247,7 +255,7 @@ def _consistent_start(ocp, xg, zg, w0, p):
     if n == 0:
         return xg, zg
     v = ca.SX.sym("v", n)
-    x, z = v[: a.nx], v[a.nx:]
+    x, z = seg(v, 0, a.nx), seg(v, a.nx, n)
     vw = ca.vertcat(x, z, ca.DM(w0))
     rows = ocp._bc_fun(vw, vw, ca.DM(p), 0.0)
     init = [i for i, k in enumerate(ocp._bc_kinds) if k == "initial"]

@@ -5,6 +5,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from .guess import seg
+
 __all__ = ["diagnose", "endpoint_checks"]
 
 
@@ -95,6 +97,15 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
         )
     if extra:
         lines.append("; ".join(extra) + ".")
+    so = {k.removeprefix("ipopt."): v for k, v in ocp.solver_options.items()}
+    if (ocp.method == "shooting" and int(stats.get("iter_count", 0) or 0) > 100
+            and so.get("hessian_approximation") != "exact"):
+        lines.append(
+            "Hint: many iterations with the limited-memory Hessian of the shooting transcription; "
+            "solver_options={'hessian_approximation': 'exact'} (second-order IDAS "
+            "sensitivities) often needs far fewer (periodic 3D pendulum: 214 -> 24), or warm "
+            "start from a collocation solution: solve(guess=collocation_solution)."
+        )
     infeas = []
     if not success:
         infeas = [] if pre else _violations(tr, g, lbg, ubg)
@@ -203,7 +214,7 @@ def endpoint_checks(ocp, guess) -> list[str]:
             continue
         path = None
         if ocp._path_fun is not None:
-            x, z, w = v[: a.nx], v[a.nx: a.nx + a.nz], v[a.nx + a.nz:]
+            x, z, w = seg(v, 0, a.nx), seg(v, a.nx, a.nx + a.nz), seg(v, a.nx + a.nz, n)
             path = ocp._path_fun(t, x, z, w, ca.DM(p))
         x0, _, _ = guess.fun(np.array([t]))
         start = np.concatenate([guess.fun(np.array([t]))[k][:, 0] for k in range(3)])

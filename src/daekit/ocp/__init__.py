@@ -627,7 +627,15 @@ class OCPSolution:
     parameters : dict
         Parameter values used (free ones at their optimum).
     stats : dict
-        IPOPT's statistics plus build time, sizes.
+        IPOPT's statistics (``iter_count``, ``return_status``, ``iterations``: the history of
+        objective and infeasibilities, ``t_wall_nlp_*``: time per function) and daekit's:
+        ``objective``, ``method``, ``transcription``, ``intervals``, ``guess`` (where the
+        initial guess came from), ``t_build``, ``t_solve``, ``t_total``, ``n_variables``,
+        ``n_constraints``, ``max_constraint_violation``, ``max_bound_violation``,
+        ``max_invariant_t0``, ``max_invariant`` (on the grid), ``n_boundary_conditions``,
+        ``boundary_rank``, ``boundary_dropped``.
+    method : str
+        ``"collocation"`` or ``"shooting"``.
     report : str
         What was done: reduction, transcription, boundary conditions kept and dropped (and why),
         solver outcome, and on failure the constraints at fault.
@@ -635,7 +643,10 @@ class OCPSolution:
         Largest constraint violations at the returned point (empty on success).
 
     ``sol["p"]`` gives any original variable or element by name, ``(len(t),)`` for one element,
-    ``(len(t), k)`` for a vector.
+    ``(len(t), k)`` for a vector. Controls are read left-continuously: the value at a grid time
+    is that of the interval ending there (at ``t = 0``, the first interval's).
+    :meth:`simulate` gives a finer :class:`daekit.Trajectory` by integrating with the optimal
+    controls; :attr:`controls` the decision controls on the grid.
     """
 
     def __init__(self) -> None:

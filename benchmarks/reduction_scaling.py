@@ -7,8 +7,11 @@ form ``x_impl``, ``dx_impl``, ``z``, ``alg``) run on the same model, side by sid
 skipped for bigger N once one of its runs took longer than the limit (60 s) or its predicted
 time (cubic growth from the previous size) exceeds the limit.
 
+A second daekit column times ``reduce_index(model, method="dummy_derivatives")`` (state
+selection per block on big stages, see :mod:`daekit.reduction.dummy`).
+
 Run: ``python benchmarks/reduction_scaling.py [N ...]``. Targets: N = 1000 under 3 s for
-daekit; at N = 200 daekit at least 20 times faster than CasADi.
+daekit (both methods); at N = 200 daekit at least 20 times faster than CasADi.
 """
 
 from __future__ import annotations
@@ -42,13 +45,18 @@ def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
     rows = []
     casadi_on = True
     prev = None
-    print(f"{'N':>6} {'eqs':>6} {'daekit [s]':>11} {'casadi [s]':>11} {'speed-up':>9}")
+    print(f"{'N':>6} {'eqs':>6} {'daekit [s]':>11} {'dummy [s]':>10} {'casadi [s]':>11} "
+          f"{'speed-up':>9}")
     for N in sizes:
         m = ex.planar_chain(N)
         t0 = time.perf_counter()
         r = reduce_index(m)
         t_dk = time.perf_counter() - t0
         assert r.nz == 3 * N and r.nx == 4 * N, r  # q' = v eliminated: states (q, v)
+        t0 = time.perf_counter()
+        rd = reduce_index(m, method="dummy_derivatives")
+        t_dd = time.perf_counter() - t0
+        assert rd.nx == 2 * N, rd  # the DOF
         t_ca = None
         if casadi_on and prev is not None and prev[1] * (N / prev[0]) ** 3 > CASADI_LIMIT:
             casadi_on = False
@@ -62,8 +70,9 @@ def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
                 casadi_on = False
         ratio = f"{t_ca / t_dk:9.1f}" if t_ca is not None else f"{'-':>9}"
         tc = f"{t_ca:11.3f}" if t_ca is not None else f"{'skipped':>11}"
-        print(f"{N:6d} {m.n_equations:6d} {t_dk:11.3f} {tc} {ratio}", flush=True)
-        rows.append({"N": N, "equations": m.n_equations, "daekit": t_dk, "casadi": t_ca})
+        print(f"{N:6d} {m.n_equations:6d} {t_dk:11.3f} {t_dd:10.3f} {tc} {ratio}", flush=True)
+        rows.append({"N": N, "equations": m.n_equations, "daekit": t_dk, "dummy": t_dd,
+                     "casadi": t_ca})
     return rows
 
 

@@ -502,3 +502,48 @@ def test_format_reduced_lists_equations_invariants_selection():
         reduce_index(ex.pendulum_planar(), method="dummy_derivatives", point={"x": 0.2, "y": -1})
     )
     assert "dummies: y, der(y)" in text
+
+
+@pytest.mark.parametrize("angle, dummy_coord", [(0.3, 0), (1.2, 1)])
+def test_dummy_derivatives_big_chain_per_block(angle, dummy_coord):
+    """A 300-link chain (stage 1 has 900 equations: done per block) turning rigidly with g = 0
+    (exact solution, daekit.examples.exact.planar_chain_rotating). Selected at the exact state
+    at angle w t: every rod lies along (cos wt, sin wt), so the best pivot of rod k is the
+    larger coordinate of mass k (x for wt = 0.3, y for wt = 1.2), and the velocities v are
+    the dummies of the kinematics rows (their private columns). The exact solution satisfies
+    every algebraic equation of the result (they include all invariants)."""
+    import time
+
+    from daekit.examples import exact
+
+    N = 300
+    m = ex.planar_chain(N, g=0.0)
+    e = exact.planar_chain_rotating(angle, N)
+    point = {"q": e["q"], "v": e["v"], "der(q)": e["der(q)"], "der(v)": e["der(v)"],
+             "lam": e["lam"], "der(q,2)": e["der(v)"]}
+    t0 = time.perf_counter()
+    r = reduce_index(m, method="dummy_derivatives", point=point)
+    assert time.perf_counter() - t0 < 3.0
+    st = r.state_selection["stages"]
+    assert st[0]["blocks"] > 1 and np.isfinite(st[0]["condition_estimate"])
+    assert r.info["index1_check"] == "passed"
+    assert r.nx == 2 * N
+    k = np.arange(N)
+    assert set(st[1]["dummies"]) == {f"q[{2 * i + dummy_coord}]" for i in k}
+    assert set(r.x_names) == (
+        {f"q[{2 * i + 1 - dummy_coord}]" for i in k} | {f"der(q)[{2 * i + 1 - dummy_coord}]"
+                                                         for i in k}
+    )
+    # the exact solution at another time satisfies alg = 0 (all equations and invariants)
+    e2 = exact.planar_chain_rotating(angle + 0.05, N)
+    vals = {}
+    for name, arr in (("q", e2["q"]), ("v", e2["v"]), ("der(q)", e2["der(q)"]),
+                      ("der(v)", e2["der(v)"]), ("der(q,2)", e2["der(v)"]), ("lam", e2["lam"])):
+        vals.update({f"{name}[{i}]": float(a) for i, a in enumerate(arr)})
+    x, z = _values(r, vals)
+    assert len(vals) >= r.nx + r.nz
+    res = np.asarray(ca.Function("g", [r.x, r.z, r.p], [r.alg])(x, z, r.p_values)).ravel()
+    assert np.max(np.abs(res)) < 1e-9 * N
+    # monitoring uses the same per-block measure as the selection
+    xs, zs = _values(r, {**vals})
+    assert selection_condition(r, xs, zs) < 10 * r.state_selection["condition"]

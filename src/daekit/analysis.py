@@ -297,6 +297,9 @@ class Analysis:
     input_derivatives : dict
         Input (control) elements whose time derivatives the reduction will need, with the
         highest order needed, e.g. ``{"u": 2}`` for lecture L2.
+    definitions : list of str
+        Differentiated equations that define a derivative explicitly (``p' = v``): the reduced
+        form substitutes them, so they are not consistency conditions to watch.
     """
 
     model_name: str
@@ -315,6 +318,7 @@ class Analysis:
     numeric: DerivativeArrayResult | None
     n_inputs: int = 0
     input_derivatives: dict[str, int] = field(default_factory=dict)
+    definitions: list[str] = field(default_factory=list)
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
@@ -416,6 +420,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(
         input_derivatives=_input_derivatives(model, c),
+        definitions=[eq_names[i] for i in _definitions(model, inc, sig)],
         model_name=model.name,
         structural_index=sig.index,
         index=index,
@@ -432,6 +437,34 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         numeric=numeric,
         n_inputs=sum(v.size for v in model.controls),
     )
+
+
+def _definitions(model: Model, inc, sig) -> list[int]:
+    """Equations with c_i >= 1 that are affine with a constant coefficient in a derivative
+    x_j^(k) with k = sigma_ij = d_j - c_i >= 1 (each j used once): explicit definitions such
+    as ``p' = v``, which the reduction eliminates."""
+    c, d = sig.c, sig.d
+    k = d[inc.cols] - c[inc.rows]
+    cand = np.nonzero((c[inc.rows] >= 1) & (k >= 1) & (inc.vals == k))[0]
+    if cand.size == 0:
+        return []
+    rows_u = np.unique(inc.rows[cand])
+    pairs = sorted({(int(inc.cols[e]), int(k[e])) for e in cand})
+    col_of = {p: n for n, p in enumerate(pairs)}
+    row_of = {int(i): n for n, i in enumerate(rows_u)}
+    J = ca.jacobian(model.residual[[int(i) for i in rows_u]],
+                    model.symbols_at([p[0] for p in pairs], [p[1] for p in pairs]))
+    used: set[int] = set()
+    out = []
+    for e in cand[np.argsort(inc.rows[cand], kind="stable")]:
+        i, j = int(inc.rows[e]), int(inc.cols[e])
+        if (out and out[-1] == i) or j in used:
+            continue
+        entry = J[row_of[i], col_of[j, int(k[e])]]
+        if entry.is_constant() and float(ca.evalf(entry)) != 0.0:
+            out.append(i)
+            used.add(j)
+    return out
 
 
 def _input_derivatives(model: Model, c: np.ndarray) -> dict[str, int]:
@@ -559,13 +592,21 @@ def _explain(a: Analysis) -> str:
         "the equations and their hidden consistency conditions."
     )
     if a.structurally_ok:
-        cons = [(nm, c) for nm, c in _group(a.equation_offsets) if c > 0]
+        defs = set(a.definitions)
+        cons = [(nm, c) for nm, c in _group({k: v for k, v in a.equation_offsets.items()
+                                             if k not in defs}) if c > 0]
         if cons:
             conds = []
             for nm, c in cons:
                 conds.extend(_der_eq(nm, k) for k in range(c))
             lines.append(
                 "Consistency conditions (must hold at the initial time): " + ", ".join(conds) + "."
+            )
+        if defs:
+            names = ", ".join(nm for nm, _ in _group({k: 0 for k in a.definitions}))
+            lines.append(
+                f"(The equations {names} define derivatives explicitly; the reduced form substitutes them, "
+                "so they hold by construction.)"
             )
     if a.input_derivatives:
         needs = ", ".join(_der(nm, k) for nm, k in _group(a.input_derivatives))

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..mechanics import LagrangianSystem
+from .lecture import _DELTA_DEFAULTS, DELTA_GAMMA, delta_robot_home
 
 __all__ = [
     "lagrangian_pendulum3d",
@@ -105,17 +106,10 @@ def lagrangian_planar_chain(
     )
 
 
-#: Data of the Lagrangian delta robot (the same as :func:`daekit.examples.delta_robot`).
-DELTA_ROBOT_DATA = {
-    "r": 0.2,  # distance of the motor axes from the vertical axis [m]
-    "a": 0.3,  # length of an upper arm [m]
-    "L": 0.6,  # length of a lower rod [m]
-    "m_arm": 0.2,  # mass of an upper arm, a uniform rod turning about its end [kg]
-    "m_p": 0.5,  # mass of the platform, a point mass [kg]
-    "g": 9.81,  # gravity [m/s^2]
-    "b": 0.0,  # viscous friction in the motors [N m s]
-}
-_GAMMA = (0.0, 2.0 * np.pi / 3.0, 4.0 * np.pi / 3.0)
+#: Data of the Lagrangian delta robot: the data of :func:`daekit.examples.delta_robot`, plus
+#: the viscous friction ``b`` in the motors [N m s].
+DELTA_ROBOT_DATA = {**_DELTA_DEFAULTS, "b": 0.0}
+_GAMMA = DELTA_GAMMA
 
 
 def _rz_dm(gamma: float) -> ca.DM:
@@ -205,32 +199,8 @@ def lagrangian_delta_robot_home(alpha=(0.3, 0.3, 0.3), **data: float) -> dict[st
     True
     """
     d = _delta_data(data, "lagrangian_delta_robot_home")
-    r, a, L, ma, mp, g = (d[k] for k in ("r", "a", "L", "m_arm", "m_p", "g"))
-    al = np.asarray(alpha, dtype=float).ravel()
-    if al.shape != (3,):
-        raise ModelError(f"lagrangian_delta_robot_home: alpha needs 3 angles, got {al.tolist()}")
-    R = [np.asarray(_rz_dm(gm)) for gm in _GAMMA]
-    elbows = np.array([R[k] @ [r + a * np.cos(al[k]), 0.0, -a * np.sin(al[k])] for k in range(3)])
-    delbow = np.array([R[k] @ [-a * np.sin(al[k]), 0.0, -a * np.cos(al[k])] for k in range(3)])
-    p = np.array([elbows[:, 0].mean(), elbows[:, 1].mean(), elbows[:, 2].min() - L])
-    for _ in range(60):
-        e = p - elbows
-        res = np.sum(e * e, axis=1) - L**2
-        step = np.linalg.solve(2.0 * e, res)
-        p = p - step
-        if np.max(np.abs(step)) < 1e-15:
-            break
-    e = p - elbows
-    if np.max(np.abs(np.sum(e * e, axis=1) - L**2)) > 1e-12:
-        raise ModelError(
-            f"lagrangian_delta_robot_home: the rods of length {L} cannot reach a common platform "
-            f"position for alpha = {al.tolist()}; choose other angles"
-        )
-    # platform rows: m_p g e3 + sum_k z_k 2 (p - p_k) = 0
-    z = np.linalg.solve((2.0 * e).T, np.array([0.0, 0.0, -mp * g]))
-    # arm rows: dV/dalpha_k + z_k dc_k/dalpha_k = u_k, dc_k/dalpha_k = -2 (p - p_k).dp_k/dalpha_k
-    dV = -ma * g * a / 2 * np.cos(al)
-    u = dV + z * (-2.0 * np.sum(e * delbow, axis=1))
+    h = delta_robot_home(alpha, **{k: v for k, v in d.items() if k != "b"})
+    al, p, z, u = h["alpha"], h["p"], h["z"], h["u"]
     zero = np.zeros(3)
     return {
         "alpha": al,

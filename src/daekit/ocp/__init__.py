@@ -420,7 +420,79 @@ class OCP:
         man = ca.vertcat(a.alg, a.inv)
         self._man_jac = ca.Function("man_jac", [a.t, v, a.p], [ca.jacobian(man, v)])
         self._man_fun = ca.Function("man", [a.t, v, a.p], [man])
+        # the end points' equations (manifold at both ends, all conditions) for the projection
+        # of the boundary analysis: residual and Jacobian with respect to (v0, vT)
+        ends = ca.vertcat(ca.substitute([man], [ca.vertcat(a.t, v)], [ca.vertcat(0.0, v0)])[0],
+                          ca.substitute([man], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0],
+                          bc)
+        self._ends_fun = ca.Function("ends", [v0, vT, a.p, Tsym],
+                                     [ends, ca.jacobian(ends, ca.vertcat(v0, vT))])
+        self._bc_pref = self._preference()
         self._kept = list(range(len(labels)))
+
+    def _levels(self) -> dict[tuple[str, int], int]:
+        """Derivative level of every decision symbol: 0 for positions, 1 for velocities...
+
+        A state ``x_i`` with ``x_j' = x_i`` (``p' = v``, or the state ``der(p)``) is one level
+        above ``x_j``; an algebraic unknown or control named ``der(q, k)`` is ``k`` levels above
+        ``q`` (``der(v)``: acceleration, level 2); other algebraic unknowns one level above the
+        highest state; controls and parameters level 0.
+        """
+        from ..errors import ModelError
+        from ..model import element_name, parse_name
+
+        a = self._aug
+        parent: dict[int, int] = {}
+        for j in range(a.nx):
+            w = a.which(a.ode[j])
+            if w is not None and w[0] == "x" and w[1] != j:
+                parent.setdefault(w[1], j)
+        lev: dict[tuple[str, int], int] = {}
+        for i in range(a.nx):
+            k, n, seen = i, 0, {i}
+            while k in parent and parent[k] not in seen:
+                k = parent[k]
+                seen.add(k)
+                n += 1
+            lev[("x", i)] = n
+        top = max((lev[("x", i)] for i in range(a.nx)), default=0)
+
+        def by_name(nm: str) -> int | None:
+            try:
+                base, order, idx = parse_name(nm)
+            except ModelError:
+                return None
+            if order == 0:
+                return None
+            en = element_name(base, 1, 0, 0) + ("" if idx is None else f"[{idx}]")
+            w = a.which(a.names[en]) if en in a.names else None
+            return lev[w] + order if w is not None and w[0] == "x" else order
+
+        for i, nm in enumerate(a.z_names):
+            k = by_name(nm)
+            lev[("z", i)] = top + 1 if k is None else k
+        for i, nm in enumerate(a.w_names):
+            k = by_name(nm)
+            lev[("w", i)] = 0 if k is None else k
+        for i in range(a.np_):
+            lev[("p", i)] = 0
+        return lev
+
+    def _preference(self) -> list[int]:
+        """Order of preference of the boundary conditions when an independent subset is chosen:
+        position-level before velocity-level (the highest derivative level of the symbols a
+        condition involves), then the order given."""
+        a = self._aug
+        lev = self._levels()
+        keys = []
+        for i, (_kind, _label, ex, _val) in enumerate(self._bc_user):
+            ws = [a.which(s) for s in ca.symvar(ex)]
+            keys.append((max((lev.get(w, 0) for w in ws if w is not None), default=0), i))
+        order = sorted(range(len(keys)), key=lambda i: keys[i])
+        pref = [0] * len(keys)
+        for r, i in enumerate(order):
+            pref[i] = r
+        return pref
 
     def _simple_bounds(self):
         return (self._lb["x"], self._ub["x"], self._lb["z"], self._ub["z"],
@@ -461,27 +533,62 @@ class OCP:
         g = make_guess(self, self._default_guess if guess is None else guess)
         return self._analyze(g)
 
-    def _analyze(self, g) -> BoundaryAnalysis:
+    def _analyze(self, g, forced=()) -> BoundaryAnalysis:
+        """Boundary analysis at the end points of the guess ``g`` (see :meth:`boundary_analysis`).
+
+        The rank of a set of conditions on the manifold matters where they hold: the guess's end
+        points are first projected (Gauss-Newton, least-norm steps) onto the set where the
+        algebraic equations, the invariants and all the conditions hold (point a); a random
+        point of that set nearby (point b) guards against a special point a (e.g. a planar
+        guess of a 3D motion). The rank is the larger of the two; the subset imposed is
+        independent at that point and, as far as possible, at the other one, and follows the
+        order of preference (position level before velocity level, then the order given);
+        ``forced`` conditions are taken first.
+        """
+        from .consistency import project_ends
+
         a = self._aug
         T = g.T
         x0, z0, w0 = g.fun(np.array([0.0]))
         xT, zT, wT = g.fun(np.array([T]))
         v0 = np.concatenate([x0[:, 0], z0[:, 0], w0[:, 0]])
         vT = np.concatenate([xT[:, 0], zT[:, 0], wT[:, 0]])
-        if "periodic" in self._bc_kinds:
-            # at a solution the periodic variables agree at both ends; the guess need not, and
-            # a non-periodic guess would hide the redundancy: analyze at vT = v0
-            vT = v0.copy()
         p = g.p
-        Jbc = np.asarray(self._bc_jac(v0, vT, p, T))
-        J0 = np.asarray(self._man_jac(0.0, v0, p))
-        JT = np.asarray(self._man_jac(T, vT, p))
         if not self._bc_labels:
+            J0 = np.asarray(self._man_jac(0.0, v0, p))
+            JT = np.asarray(self._man_jac(T, vT, p))
             return BoundaryAnalysis([], 0, [], [], np.zeros(0), np.zeros((0, 0)),
                                     (J0.shape[1] - a.nz, JT.shape[1] - a.nz))
-        ba = analyze_boundary(self._bc_labels, Jbc, J0, JT)
+        if "periodic" in self._bc_kinds:
+            # a non-periodic guess would put point a far from the periodic solutions' set
+            vT = v0.copy()
+        a0, aT, res_a = project_ends(self._ends_fun, v0, vT, p, T)
+        rng = np.random.default_rng(7)
+        y = np.concatenate([a0, aT])
+        y = y + 0.03 * np.maximum(1.0, np.abs(y)) * rng.standard_normal(y.size)
+        n = v0.size
+        b0, bT, res_b = project_ends(self._ends_fun, y[:n], y[n:], p, T)
+        pts = []
+        for e0, eT in ((a0, aT), (b0, bT)):
+            pts.append((np.asarray(self._bc_jac(e0, eT, p, T)),
+                        np.asarray(self._man_jac(0.0, e0, p)),
+                        np.asarray(self._man_jac(T, eT, p))))
+        ba = analyze_boundary(self._bc_labels, *pts[0], preference=self._bc_pref,
+                              others=pts[1:], forced=list(forced))
+        ba.preference = list(self._bc_pref)
+        ba.forced = [int(i) for i in forced]
         # the manifold counts w as free directions; report the state-space dimension
         ba.manifold_dims = (ba.manifold_dims[0] - a.nw, ba.manifold_dims[1] - a.nw)
+        ba.notes.append(
+            "rank evaluated at the guess's end points projected onto the manifold and the given "
+            f"conditions (residual {res_a:.1e}) and at a random point of that set nearby "
+            f"(residual {res_b:.1e}): ranks {ba.ranks[0]} and {ba.ranks[1]}"
+        )
+        if res_a > 1e-6:
+            ba.notes.append(
+                "the conditions could not all be met together with the invariants near the "
+                f"guess (least-squares residual {res_a:.2e})"
+            )
         return ba
 
     # ------------------------------------------------------------------ solve

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-__all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis"]
+__all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
+           "project_ends", "restricted_jacobian"]
 
 
 @dataclass
@@ -44,6 +45,14 @@ class BoundaryAnalysis:
         The restricted Jacobian itself (rows = conditions).
     manifold_dims : tuple of int
         Dimension of the manifold at the initial and final point.
+    notes : list of str
+        What the analysis did (points used, forced conditions), for the report.
+    ranks : list of int
+        The rank at each point the analysis used (see :meth:`OCP.boundary_analysis`).
+    preference : list of int
+        The order of preference of each condition (lower is kept first).
+    forced : list of int
+        Conditions kept first because a previous solve violated them while dropped.
     """
 
     labels: list[str]
@@ -54,6 +63,9 @@ class BoundaryAnalysis:
     restricted: np.ndarray
     manifold_dims: tuple[int, int] = (0, 0)
     notes: list[str] = field(default_factory=list)
+    ranks: list[int] = field(default_factory=list)
+    preference: list[int] = field(default_factory=list)
+    forced: list[int] = field(default_factory=list)
 
     @property
     def n_conditions(self) -> int:
@@ -72,27 +84,93 @@ def null_basis(J: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     return sla.null_space(J, rcond=tol)
 
 
-def independent_rows(A: np.ndarray, tol: float = 1e-7) -> tuple[int, list[int], list[int]]:
-    """Rank of ``A`` and an independent subset of its rows (column-pivoted QR of ``A^T``).
+def _rank(A: np.ndarray, tol: float) -> int:
+    if A.size == 0:
+        return 0
+    sv = np.linalg.svd(A, compute_uv=False)
+    return int(np.sum(sv > tol * max(1.0, float(sv[0]))))
 
-    Returns ``(rank, kept, dropped)`` with index lists in increasing order. A row is dropped
-    when it is (numerically) a combination of the kept ones; the threshold is relative to the
-    largest pivot, ``tol * max(1, |R_00|)``.
+
+def independent_rows(
+    A: np.ndarray,
+    tol: float = 1e-7,
+    preference=None,
+    others=(),
+    forced=(),
+    threshold: float = 0.1,
+) -> tuple[int, list[int], list[int]]:
+    """Rank of ``A`` and an independent subset of its rows, chosen by preference.
+
+    Greedy orthogonalization with *threshold pivoting* (column-pivoted QR of ``A^T`` whose ties
+    are broken by preference): at each step, among the remaining rows whose component
+    orthogonal to the rows already chosen is at least ``threshold`` times the largest such
+    component, the most preferred one is chosen. A row whose orthogonal component is below
+    ``tol * max(1, largest row norm)`` is dependent: it is dropped.
+
+    Parameters
+    ----------
+    preference : sequence of int, optional
+        ``preference[i]`` is the rank of row ``i`` in the order of preference (lower first);
+        default: the rows' own order.
+    others : sequence of arrays
+        The same rows evaluated elsewhere (other points): among the eligible rows, those that
+        are also independent there (of the rows already chosen) come first.
+    forced : sequence of int
+        Rows chosen first (in this order) whenever they are independent of each other.
+
+    Returns ``(rank, kept, dropped)`` with index lists in increasing order.
 
     >>> independent_rows(np.array([[1.0, 0.0], [2.0, 0.0], [0.0, 1.0]]))
+    (2, [0, 2], [1])
+    >>> independent_rows(np.array([[1.0, 0.0], [2.0, 0.0], [0.0, 1.0]]), preference=[2, 0, 1])
     (2, [1, 2], [0])
     """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    m = A.shape[0]
+    mats = [np.atleast_2d(np.asarray(A, dtype=float))]
+    mats += [np.atleast_2d(np.asarray(B, dtype=float)) for B in others]
+    m = mats[0].shape[0]
     if m == 0:
         return 0, [], []
-    if A.shape[1] == 0:
+    if mats[0].shape[1] == 0:
         return 0, [], list(range(m))
-    _, R, piv = sla.qr(A.T, pivoting=True, mode="economic")
-    d = np.abs(np.diag(R))
-    ref = max(1.0, float(d[0])) if d.size else 1.0
-    rank = int(np.sum(d > tol * ref))
-    return rank, sorted(int(i) for i in piv[:rank]), sorted(int(i) for i in piv[rank:])
+    pref = list(range(m)) if preference is None else [int(v) for v in preference]
+    # residuals: the rows minus their projections on the span of the chosen rows (per point)
+    res = [M.copy() for M in mats]
+    lim = [tol * max(1.0, float(np.max(np.linalg.norm(M, axis=1), initial=0.0))) for M in mats]
+    chosen: list[int] = []
+    free = set(range(m))
+
+    def take(i: int) -> None:
+        for M, lk in zip(res, lim, strict=True):
+            nrm = float(np.linalg.norm(M[i]))
+            if nrm > lk:  # at a point where row i is dependent, nothing to project out
+                q = M[i] / nrm
+                M -= np.outer(M @ q, q)
+        chosen.append(i)
+        free.discard(i)
+
+    for i in forced:
+        if i in free and np.linalg.norm(res[0][i]) > lim[0]:
+            take(int(i))
+    while free:
+        norms = {i: float(np.linalg.norm(res[0][i])) for i in free}
+        cand = [i for i in free if norms[i] > lim[0]]
+        if not cand:
+            break
+        top = max(norms[i] for i in cand)
+        elig = [i for i in cand if norms[i] >= threshold * top]
+        both = [i for i in elig
+                if all(np.linalg.norm(R[i]) > lk for R, lk in zip(res[1:], lim[1:], strict=True))]
+        take(min(both or elig, key=lambda i: (pref[i], i)))
+    return len(chosen), sorted(chosen), sorted(free)
+
+
+def restricted_jacobian(J_bc, J_man0, J_manT, n_conditions: int):
+    """``J_bc * blockdiag(N_0, N_T)`` and the manifold dimensions ``(dim N_0, dim N_T)``."""
+    N0 = null_basis(J_man0)
+    NT = null_basis(J_manT)
+    n = np.atleast_2d(J_man0).shape[1]
+    J_bc = np.atleast_2d(np.asarray(J_bc, dtype=float)).reshape(n_conditions, 2 * n)
+    return np.hstack([J_bc[:, :n] @ N0, J_bc[:, n:] @ NT]), (N0.shape[1], NT.shape[1])
 
 
 def analyze_boundary(
@@ -101,6 +179,9 @@ def analyze_boundary(
     J_man0: np.ndarray,
     J_manT: np.ndarray,
     tol: float = 1e-7,
+    preference=None,
+    others=(),
+    forced=(),
 ) -> BoundaryAnalysis:
     """Rank of boundary conditions on the manifold and an independent subset.
 
@@ -112,26 +193,74 @@ def analyze_boundary(
         Jacobian of the conditions with respect to ``(v_0, v_T)``, ``v = (x, z, w)``.
     J_man0, J_manT : array (n_man, n)
         Jacobians of ``[alg; invariants]`` with respect to ``v`` at the initial and final point.
+    preference : sequence of int, optional
+        Rank of each condition in the order of preference (see :func:`independent_rows`).
+    others : sequence of (J_bc, J_man0, J_manT)
+        The same Jacobians at other points. The rank is the largest over all points; the subset
+        is chosen at a point of largest rank (the first such), preferring conditions that are
+        independent at the other points too.
+    forced : sequence of int
+        Conditions to keep whenever they are independent of each other.
 
     >>> # one state, no manifold constraint: x(0) = 1 and 2 x(0) = 2 are one condition
     >>> a = analyze_boundary(["a", "b"], np.array([[1.0, 0], [2.0, 0]]), np.zeros((0, 1)),
     ...                      np.zeros((0, 1)))
-    >>> a.rank, a.dropped
-    (1, [0])
+    >>> a.rank, a.kept, a.dropped
+    (1, [0], [1])
     """
-    N0 = null_basis(J_man0)
-    NT = null_basis(J_manT)
-    n = J_man0.shape[1]
-    J_bc = np.atleast_2d(np.asarray(J_bc, dtype=float)).reshape(len(labels), 2 * n)
-    A = np.hstack([J_bc[:, :n] @ N0, J_bc[:, n:] @ NT])
-    rank, kept, dropped = independent_rows(A, tol)
+    m = len(labels)
+    pts = [(J_bc, J_man0, J_manT), *others]
+    restricted = [restricted_jacobian(*pt, m) for pt in pts]
+    ranks = [_rank(A, tol) for A, _ in restricted]
+    k = int(np.argmax(ranks))
+    A, dims = restricted[k]
+    rest = [B for i, (B, _) in enumerate(restricted) if i != k]
+    rank, kept, dropped = independent_rows(A, tol, preference, rest, forced)
     sv = np.linalg.svd(A, compute_uv=False) if A.size else np.zeros(0)
-    return BoundaryAnalysis(
+    ba = BoundaryAnalysis(
         labels=list(labels),
         rank=rank,
         kept=kept,
         dropped=dropped,
         singular_values=sv,
         restricted=A,
-        manifold_dims=(N0.shape[1], NT.shape[1]),
+        manifold_dims=dims,
+        ranks=ranks,
     )
+    return ba
+
+
+def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
+    """Gauss-Newton projection of the end points ``(v0, vT)`` onto ``fun(v0, vT, p, T) = 0``.
+
+    ``fun`` returns ``(residual, Jacobian with respect to (v0, vT))``; the steps are the
+    least-norm solutions of the linearized equations (so redundant or, near a solution,
+    dependent equations do no harm), halved while they do not decrease the residual. Returns
+    ``(v0, vT, largest residual)``; where the equations cannot all hold, the point is a local
+    least-squares one.
+    """
+    n = np.size(v0)
+    y = np.concatenate([np.ravel(v0), np.ravel(vT)]).astype(float)
+
+    def ev(y):
+        r, J = fun(y[:n], y[n:], p, T)
+        return np.asarray(r, float).ravel(), np.asarray(J, float)
+
+    r, J = ev(y)
+    for _ in range(max_iter):
+        nr = float(np.linalg.norm(r))
+        if r.size == 0 or np.max(np.abs(r)) < tol:
+            break
+        d = np.linalg.lstsq(J, -r, rcond=1e-12)[0]
+        step = 1.0
+        while step > 1e-6:
+            yn = y + step * d
+            rn, Jn = ev(yn)
+            if np.all(np.isfinite(rn)) and np.linalg.norm(rn) < nr:
+                break
+            step *= 0.5
+        else:
+            break
+        y, r, J = yn, rn, Jn
+    worst = float(np.max(np.abs(r), initial=0.0))
+    return y[:n], y[n:], worst

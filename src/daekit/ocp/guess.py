@@ -131,27 +131,18 @@ def make_guess(ocp, guess) -> Guess:
     else:
         tau = np.array([1.0])
     ts, Xs, Zs, Ws = [0.0], [x0], [z0], [w_at(0.0)]
-    sim = _interval_integrator(a, tau)
+    sim = _GuessSimulator(a, tau, p)
     x, z = x0, z0
     failed = None
     for k in range(N):
         tk, h = k * T / N, T / N
         wk = w_at(tk + 0.5 * h)
-        if failed is None and sim is not None:
+        if failed is None:
             try:
-                with quiet():
-                    res = sim(x0=x, z0=z, p=np.concatenate([wk, p, [tk, h]]))
-                xf = np.asarray(res["xf"]).reshape(a.nx, tau.size)
-                zf = np.asarray(res["zf"]).reshape(a.nz, tau.size)
-                if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(zf))):
-                    raise RuntimeError("non-finite values")
-                if np.max(np.abs(xf), initial=0.0) > 1e6:
-                    raise RuntimeError("diverging")
+                xf, zf = sim.interval(x, z, wk, tk, h)
             except RuntimeError as exc:
                 failed = (tk, str(exc).splitlines()[-1] if str(exc) else "")
-                xf = np.repeat(x.reshape(-1, 1), tau.size, axis=1)
-                zf = np.repeat(z.reshape(-1, 1), tau.size, axis=1)
-        else:
+        if failed is not None:
             xf = np.repeat(x.reshape(-1, 1), tau.size, axis=1)
             zf = np.repeat(z.reshape(-1, 1), tau.size, axis=1)
         for j, tj in enumerate(tau):
@@ -227,25 +218,90 @@ def _from_values(ocp, t: np.ndarray, t_end: float, values: dict, note: str) -> G
     return Guess(_interp_fun(t, X, Z, W), T, p, note=note)
 
 
-def _interval_integrator(a, tau: np.ndarray):
-    """IDAS over one interval in scaled time ``s in [0, 1]``, outputs at ``tau``."""
-    tk = ca.SX.sym("tk")
-    h = ca.SX.sym("h")
-    s = ca.SX.sym("s")
-    t_of_s = tk + h * s
-    ode = ca.substitute([a.ode], [a.t], [t_of_s])[0]
-    alg = ca.substitute([a.alg], [a.t], [t_of_s])[0]
-    dae = {"t": s, "x": a.x, "z": a.z, "p": ca.vertcat(a.w, a.p, tk, h), "ode": h * ode,
-           "alg": alg}
-    plugin = "idas" if a.nz else "cvodes"
-    if a.nz == 0:
-        dae.pop("z")
-        dae.pop("alg")
-    try:
-        return ca.integrator("guess_sim", plugin, dae, 0.0, list(map(float, tau)),
-                             {"abstol": 1e-8, "reltol": 1e-6, "max_num_steps": 20000})
-    except RuntimeError:  # pragma: no cover
-        return None
+class _GuessSimulator:
+    """Integrates the index-1 system interval by interval (IDAS, CVODES without algebraic
+    unknowns) in scaled time ``s in [0, 1]`` with outputs at ``tau``.
+
+    Each interval starts from the previous one's end state, which lies on the manifold, with
+    the algebraic unknowns re-solved for the interval's control by Newton's method on
+    ``alg = 0`` (to roundoff). IDAS is therefore called without its own consistent
+    initialization (``calc_ic=False``): IDACalcIC's line search fails ("IDA_LINESEARCH_FAIL",
+    "too small a step") when handed values that are already consistent to roundoff, which is
+    what stopped the guess simulation of a swinging 3D pendulum after a few intervals. Only if
+    Newton's method does not converge (or the integration fails), IDACalcIC is tried.
+    """
+
+    def __init__(self, a, tau: np.ndarray, p: np.ndarray) -> None:
+        self.a, self.tau, self.p = a, np.asarray(tau, float), np.asarray(p, float)
+        self._F: dict[bool, object] = {}
+        if a.nz:
+            self.alg = ca.Function("alg_z", [a.t, a.x, a.z, a.w, a.p],
+                                   [a.alg, ca.jacobian(a.alg, a.z)])
+
+    def _integrator(self, calc_ic: bool):
+        if calc_ic not in self._F:
+            a = self.a
+            tk, h, s = ca.SX.sym("tk"), ca.SX.sym("h"), ca.SX.sym("s")
+            ode, alg = ca.substitute([a.ode, a.alg], [a.t], [tk + h * s])
+            dae = {"t": s, "x": a.x, "p": ca.vertcat(a.w, a.p, tk, h), "ode": h * ode}
+            opts = {"abstol": 1e-8, "reltol": 1e-6, "max_num_steps": 20000}
+            if a.nz:
+                dae.update(z=a.z, alg=alg)
+                opts["calc_ic"] = calc_ic
+            plugin = "idas" if a.nz else "cvodes"
+            self._F[calc_ic] = ca.integrator("guess_sim", plugin, dae, 0.0,
+                                             list(map(float, self.tau)), opts)
+        return self._F[calc_ic]
+
+    def _newton_z(self, t: float, x, z, w):
+        """Algebraic unknowns consistent with ``x`` and the control ``w`` (None if Newton fails)."""
+        z = np.asarray(z, float).copy()
+        for _ in range(30):
+            r, J = self.alg(t, x, z, w, self.p)
+            r = np.asarray(r, float).ravel()
+            if np.max(np.abs(r), initial=0.0) < 1e-12 * max(1.0, float(np.max(np.abs(z)))):
+                return z
+            try:
+                z = z - np.linalg.solve(np.asarray(J, float), r)
+            except np.linalg.LinAlgError:
+                return None
+            if not np.all(np.isfinite(z)):
+                return None
+        r = np.asarray(self.alg(t, x, z, w, self.p)[0], float).ravel()
+        return z if np.max(np.abs(r), initial=0.0) < 1e-8 * max(1.0, float(np.max(np.abs(z)))) \
+            else None
+
+    def interval(self, x, z, w, tk: float, h: float):
+        """``(X, Z)`` at the points ``tk + h tau``; RuntimeError when the integration fails."""
+        a = self.a
+        pv = np.concatenate([w, self.p, [tk, h]])
+        attempts = [False, True]
+        if a.nz:
+            zc = self._newton_z(tk, x, z, w)
+            if zc is None:
+                attempts = [True]
+            else:
+                z = zc
+        else:
+            attempts = [False]
+        err = None
+        for calc_ic in attempts:
+            try:
+                with quiet():
+                    res = self._integrator(calc_ic)(x0=x, z0=z, p=pv)
+            except RuntimeError as exc:
+                err = exc
+                continue
+            xf = np.asarray(res["xf"]).reshape(a.nx, self.tau.size)
+            zf = np.asarray(res["zf"]).reshape(a.nz, self.tau.size)
+            if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(zf))):
+                err = RuntimeError("non-finite values")
+                continue
+            if np.max(np.abs(xf), initial=0.0) > 1e6:
+                err = RuntimeError("diverging")
+                continue
+            return xf, zf
+        raise err if err is not None else RuntimeError("integration failed")
 
 
 def _consistent_start(ocp, xg, zg, w0, p):

@@ -193,11 +193,22 @@ def initialize(
     dup = {nm for nm in fixed_names if fixed_names.count(nm) > 1}
     if dup:
         raise InitializationError(f"fixed: {sorted(dup)} given more than once")
-    for i, (ni, ei, vi) in enumerate(fixed_items):  # two names for the same quantity
-        for nj, ej, vj in fixed_items[i + 1:]:
-            if ca.is_equal(ei, ej, 2) and abs(vi - vj) > 1e-12 * (1 + abs(vi)):
+    # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols are
+    # compared by hash, other expressions pairwise
+    seen: dict[int, tuple[str, float]] = {}
+    others: list[tuple[str, ca.SX, float]] = []
+    for ni, ei, vi in fixed_items:
+        e = ca.SX(ei)
+        if e.is_symbolic():
+            nj, vj = seen.setdefault(e.element_hash(), (ni, vi))
+            pairs = [(nj, vj)] if nj != ni else []
+        else:
+            pairs = [(nj, vj) for nj, ej, vj in others if ca.is_equal(e, ej, 2)]
+            others.append((ni, e, vi))
+        for nj, vj in pairs:
+            if abs(vi - vj) > 1e-12 * (1 + abs(vi)):
                 raise InitializationError(
-                    f"initialize: the fixed values {ni} = {vi:g} and {nj} = {vj:g} contradict "
+                    f"initialize: the fixed values {nj} = {vj:g} and {ni} = {vi:g} contradict "
                     f"each other: in this system both are the same quantity; fix only one"
                 )
 
@@ -361,20 +372,28 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
 
 
 def _dependent_fixed(J, n_cons, fixed_names) -> list[str]:
+    """Fixed values whose rows of ``J`` lie in the span of the consistency rows and of the
+    fixed rows before them: one QR of the stacked rows (no pivoting, so the order is kept);
+    ``|R_kk|`` is the distance of row ``k`` from the span of the rows before it."""
     if not fixed_names:
         return []
-    out = []
+    n = J.shape[1]
     base = J[:n_cons]
-    rank = np.linalg.matrix_rank(base) if base.size else 0
-    rows = base
-    for k, nm in enumerate(fixed_names):
-        rows_new = np.vstack([rows, J[n_cons + k: n_cons + k + 1]])
-        rnew = np.linalg.matrix_rank(rows_new, tol=1e-9 * max(1.0, np.abs(rows_new).max()))
-        if rnew == rank:
-            out.append(nm)
-        else:
-            rows, rank = rows_new, rnew
-    return out
+    if base.size:
+        # an orthonormal basis of the consistency rows' span, then remove it from the fixed rows
+        u, sv, vt = np.linalg.svd(base, full_matrices=False)
+        rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
+        basis = vt[:rank]
+        rows = J[n_cons:] - (J[n_cons:] @ basis.T) @ basis
+    else:
+        rows = J[n_cons:].copy()
+    if rows.shape[0] == 0 or n == 0:
+        return list(fixed_names)
+    scale = max(1.0, np.abs(J).max())
+    r = scipy.linalg.qr(rows.T, mode="r")[0]
+    diag = np.abs(np.diag(r)) if r.shape[0] >= rows.shape[0] else np.r_[
+        np.abs(np.diag(r)), np.zeros(rows.shape[0] - r.shape[0])]
+    return [nm for k, nm in enumerate(fixed_names) if diag[k] <= 1e-9 * scale]
 
 
 def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:

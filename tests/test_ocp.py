@@ -448,3 +448,136 @@ def test_shooting_on_an_ode_uses_cvodes_and_matches_riccati():
     assert sol.success, sol.report
     assert "CVODES" in sol.report
     assert sol.objective == pytest.approx(P0, rel=1e-3) and sol.objective > P0
+
+
+# ---------------------------------------------------------------- 3D pendulum: rest to rest
+TH0 = float(np.arcsin(0.6))  # p(0) = (0.6, 0, -0.8) = (sin th, 0, -cos th)
+
+
+def pendulum3d_rest_to_rest():
+    """The user guide's example: from rest at p = (0.6, 0, -0.8) to rest with p[0] = -0.6."""
+    m = dk.examples.pendulum3d()
+    u = m.variables["u"].sym
+    ocp = OCP(m, t_final=2.0, intervals=30, degree=3)
+    ocp.minimize(integral=ca.sumsqr(u))
+    ocp.initial({"p": [0.6, 0.0, -0.8], "v": [0.0, 0.0, 0.0]})
+    ocp.final({"p[0]": -0.6, "v": [0.0, 0.0, 0.0]})
+    return ocp
+
+
+def angle_reference(N=30, T=2.0, sub=6, d=3, thT=-TH0):
+    """The same problem in the plane of the motion, in the angle ``th`` (p = (sin, 0, -cos)):
+    ``th'' = u . (cos th, sin th) - g sin th`` with the same control (a constant vector
+    (u0, u2) on each of the N intervals, cost ``sum h |u_k|^2``), the ODE collocated by hand
+    (Radau, degree d) on ``sub`` subintervals per control interval. The motion stays in the
+    plane (tested): u[1] = 0 and the out-of-plane states stay zero."""
+    tau = np.append(0.0, ca.collocation_points(d, "radau"))
+    C = np.zeros((d + 1, d + 1))
+    for j in range(d + 1):
+        ell = np.poly1d([1.0])
+        for r in range(d + 1):
+            if r != j:
+                ell *= np.poly1d([1.0, -tau[r]]) / (tau[j] - tau[r])
+        C[j] = np.polyder(ell)(tau)
+    opti = ca.Opti()
+    U = opti.variable(2, N)
+    M = N * sub
+    hf = T / M
+    Y = opti.variable(2, M * d + 1)  # (th, th') at every collocation point
+    opti.subject_to(Y[:, 0] == ca.DM([TH0, 0.0]))
+    for k in range(M):
+        u = U[:, k // sub]
+        Ys = [Y[:, k * d + j] for j in range(d + 1)]
+        for j in range(1, d + 1):
+            th, om = Ys[j][0], Ys[j][1]
+            f = ca.vertcat(om, u[0] * ca.cos(th) + u[1] * ca.sin(th) - G * ca.sin(th))
+            opti.subject_to(sum(C[r, j] * Ys[r] for r in range(d + 1)) == hf * f)
+    opti.subject_to(Y[:, -1] == ca.DM([thT, 0.0]))
+    opti.minimize(T / N * ca.sumsqr(U))
+    tt = np.linspace(0.0, T, M * d + 1)
+    opti.set_initial(Y[0, :], TH0 * np.cos(np.pi * tt / T))
+    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes"})
+    return float(opti.solve().value(opti.f))
+
+
+def test_pendulum3d_rest_to_rest_imposes_every_user_condition():
+    ocp = pendulum3d_rest_to_rest()
+    sol = ocp.solve()
+    assert sol.success, sol.report
+    # the guess simulation (a free swing, u = 0) ran over the whole horizon
+    assert sol.stats["guess"] == "simulation with the guessed controls"
+    ba = sol.boundary
+    # on the 4-dim manifold: 4 independent initial conditions of 6, 3 final of 4 (v = 0 is 2
+    # conditions where p.v = 0; p[0] the third)
+    assert (ba.n_conditions, ba.rank, ba.manifold_dims) == (10, 7, (4, 4))
+    kept = [ba.labels[i] for i in ba.kept]
+    assert "final p[0]" in kept and sum(lab.startswith("final v") for lab in kept) == 2
+    dropped = [ba.labels[i] for i in ba.dropped]
+    assert dropped == ["initial p[2]", "initial v[2]", "final v[2]"]  # preference order
+    p, v = sol["p"], sol["v"]
+    assert np.max(np.abs(p[0] - [0.6, 0.0, -0.8])) < 1e-9
+    assert np.max(np.abs(v[0])) < 1e-9
+    assert abs(p[-1, 0] + 0.6) < 1e-9 and np.max(np.abs(v[-1, :2])) < 1e-9
+    assert abs(v[-1, 2]) < 1e-6  # the truly redundant one: implied by p.v = 0 at T
+    assert p[-1, 2] == pytest.approx(-0.8, abs=1e-6)  # the lower branch, the cheap one
+    # planar motion: the minimal-coordinate (angle) problem is the same problem
+    assert np.max(np.abs(p[:, 1])) < 1e-9 and np.max(np.abs(sol["u"][:, 1])) < 1e-9
+    ref = angle_reference()
+    assert sol.objective == pytest.approx(ref, rel=1e-5)  # measured: 7.7e-8 relative
+    assert "WARNING" not in sol.report and "Re-solved" not in sol.report
+
+
+def test_guess_simulation_runs_the_whole_free_swing():
+    """The guess simulation (u = 0) against the exact pendulum motion (Jacobi elliptic):
+    sin(th/2) = k sn(K - sqrt(g/L) t, k), k = sin(th0/2)."""
+    from scipy.special import ellipj, ellipk
+
+    from daekit.ocp.guess import make_guess
+
+    ocp = pendulum3d_rest_to_rest()
+    ocp._prepare()
+    g = make_guess(ocp, None)
+    assert "stopped" not in g.note
+    t = np.linspace(0.0, 2.0, 7)
+    X = g.fun(t)[0]
+    k = np.sin(TH0 / 2)
+    sn = ellipj(ellipk(k**2) - np.sqrt(G) * t, k**2)[0]
+    th = 2 * np.arcsin(k * sn)
+    # the guess is interpolated linearly between collocation points: O(h^2) ~ 1e-3
+    assert np.max(np.abs(X[0] - np.sin(th))) < 3e-3
+    assert np.max(np.abs(X[2] + np.cos(th))) < 3e-3
+    exact_T = make_guess(ocp, None).fun(np.array([2.0]))[0][:, 0]
+    assert exact_T[0] == pytest.approx(np.sin(th[-1]), abs=1e-4)  # a node: IDAS accuracy
+
+
+def test_violated_dropped_condition_is_imposed_on_a_second_solve():
+    """A guess on the other branch of the rod (p[2] = +0.8 at t = 0): the first solve keeps
+    initial p[2] = -0.8 dropped (implied only locally) and ends on the wrong branch; solve()
+    then imposes it and re-solves from that solution."""
+    ocp = pendulum3d_rest_to_rest()
+    r = dk.reduce_index(ocp.model)
+    init = dk.initialize(r, guess={"p": [0.6, 0, 0.8], "v": [0, 0, 0]},
+                         fixed={"p[0]": 0.6, "p[1]": 0.0, "v[0]": 0.0, "v[1]": 0.0})
+    wrong = dk.simulate(r, np.linspace(0, 2, 101), init, inputs={"u": lambda t: [0, 0, G]})
+    assert wrong["p"][0, 2] == pytest.approx(0.8)
+    sol = ocp.solve(guess=wrong)
+    assert sol.success, sol.report
+    assert "Re-solved from that solution imposing initial p[2]" in sol.report
+    assert sol.stats["resolved"]["forced"] == ["initial p[2]"]
+    p, v = sol["p"], sol["v"]
+    assert np.max(np.abs(p[0] - [0.6, 0.0, -0.8])) < 1e-6 and np.max(np.abs(v[0])) < 1e-6
+    assert abs(p[-1, 0] + 0.6) < 1e-6 and np.max(np.abs(v[-1])) < 1e-5
+
+
+def test_independent_rows_prefers_and_forces():
+    A = np.array([[1.0, 0.0], [2.0, 0.0], [0.0, 1.0]])
+    assert independent_rows(A) == (2, [0, 2], [1])  # order given
+    assert independent_rows(A, preference=[1, 0, 2]) == (2, [1, 2], [0])
+    assert independent_rows(A, forced=[1]) == (2, [1, 2], [0])
+    # a row at least 10 times smaller than the largest is not chosen for preference alone
+    B = np.array([[1e-3, 1e-3], [1.0, 0.0], [0.0, 1.0]])
+    assert independent_rows(B) == (2, [1, 2], [0])
+    # a row dependent at another point is passed over when an alternative exists
+    C1 = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    C2 = np.array([[1.0, 0.0], [2.0, 0.0], [1.0, 1.0]])
+    assert independent_rows(C1, others=[C2]) == (2, [0, 2], [1])

@@ -627,7 +627,6 @@ class OCP:
             (otherwise ``sol.success`` is False and ``sol.report`` says why).
         """
         from .guess import make_guess
-        from .report import diagnose, endpoint_checks
 
         if redundancy not in ("drop", "keep"):
             raise OCPError(f"solve(redundancy=...): 'drop' or 'keep', got {redundancy!r}")
@@ -635,6 +634,71 @@ class OCP:
         self._prepare()
         g = make_guess(self, self._default_guess if guess is None else guess)
         ba = self._analyze(g)
+        sol = self._solve_once(g, ba, redundancy, check, t_start)
+        if redundancy == "drop" and sol.success and ba.dropped:
+            sol = self._resolve_violated(sol, ba, check)
+        if not sol.success and raise_on_failure:
+            raise OCPError(sol.report)
+        return sol
+
+    def _dropped_violations(self, sol, ba) -> list[tuple[int, float]]:
+        """Dropped conditions that do not hold at ``sol``: ``[(index, residual)]``.
+
+        A dropped condition is implied by the kept ones and the invariants near the point of
+        the analysis; at the solution it holds to the accuracy the invariants hold at the ends
+        (the discretization's). A residual above ``1e-4 * max(1, |end state|)`` means that the
+        solution reached another branch of the constraints where it is not implied.
+        """
+        res, scale = sol._bc_residuals
+        return [(i, float(res[i])) for i in ba.dropped if abs(res[i]) > 1e-4 * scale]
+
+    def _resolve_violated(self, first, ba, check: bool):
+        """Re-solve once, from ``first``, imposing the dropped conditions it violates."""
+        from .guess import make_guess
+
+        viol = self._dropped_violations(first, ba)
+        if not viol:
+            return first
+        t0 = _time.perf_counter()
+        forced = [i for i, _ in viol]
+        g = make_guess(self, first)
+        ba2 = self._analyze(g, forced=forced)
+        labels = [ba.labels[i] for i in forced]
+        swapped = [ba.labels[i] for i in ba.kept if i not in ba2.kept]
+        sol = self._solve_once(g, ba2, "drop", check, t0)
+        first_txt = (
+            f"First solve: {first.status}, objective {first.objective:.10g}, but the dropped "
+            + ", ".join(f"{ba.labels[i]} (residual {r:+.3g})" for i, r in viol)
+            + " did not hold: the solution reached a branch of the constraints where "
+            + ("it is" if len(viol) == 1 else "they are")
+            + " not implied by the others. Re-solved from that solution imposing "
+            + _list_or_none(labels)
+            + " instead of " + _list_or_none(swapped) + "."
+        )
+        sol.stats["resolved"] = {"first_objective": first.objective,
+                                 "first_status": first.status, "forced": labels,
+                                 "first_iter_count": first.stats.get("iter_count")}
+        lines = sol.report.split("\n")
+        lines.insert(1, first_txt)
+        problems = [ba.labels[i] for i in forced if i not in ba2.kept]
+        viol2 = self._dropped_violations(sol, ba2) if sol.success else []
+        if viol2 or problems or not sol.success:
+            bad = problems + [ba2.labels[i] for i, _ in viol2]
+            sol.success = False
+            lines.append(
+                "FAILED: after the re-solve the boundary condition(s) "
+                + _list_or_none(bad or labels)
+                + " still do not hold together with the others at the solution; give a guess "
+                "on the intended branch (e.g. a simulation near the intended motion) or state "
+                "the conditions so that they select it."
+            )
+        sol.report = "\n".join(lines)
+        return sol
+
+    def _solve_once(self, g, ba, redundancy: str, check: bool, t_start: float):
+        """One transcription and IPOPT run with the boundary selection of ``ba``."""
+        from .report import diagnose, endpoint_checks
+
         self._last_boundary = ba
         self._kept = ba.kept if redundancy == "drop" else list(range(len(self._bc_labels)))
         if self.method == "collocation":
@@ -644,7 +708,9 @@ class OCP:
         tr = transcribe(self, g.fun, g.T, g.p)
         B = tr.builder
         lbx, ubx, x0, lbg, ubg = B.arrays()
-        if g.V is not None and g.V.size == x0.size and g.key == self._structure_key():
+        if (g.V is not None and g.V.size == x0.size and g.key is not None
+                and g.key[:-1] == self._structure_key()[:-1]):
+            # the same variables (the boundary selection, last in the key, only changes rows)
             x0 = g.V.copy()
         x0 = np.clip(x0, lbx, ubx)
         V, G = B.V(), B.G()
@@ -705,13 +771,18 @@ class OCP:
         sol.report, sol.infeasibilities = diagnose(
             self, tr, ba, Vopt, gopt, lbg, ubg, lbx, ubx, success, status, stats, g, pre
         )
-        if not success and raise_on_failure:
-            raise OCPError(sol.report)
+        v0e, vTe, Pe, Te = (np.asarray(x) for x in tr.ends(Vopt))
+        res = np.asarray(self._bc_fun(v0e, vTe, Pe, Te), float).ravel()
+        sol._bc_residuals = (res, max(1.0, float(np.max(np.abs(v0e), initial=1.0))))
         return sol
 
     def _structure_key(self):
         return (self.method, self.intervals, self.degree, self.control_mode,
                 self._T_free is not None, tuple(sorted(self._free_params)), tuple(self._kept))
+
+
+def _list_or_none(items: list[str]) -> str:
+    return ", ".join(items) if items else "nothing"
 
 
 class OCPSolution:
@@ -770,6 +841,7 @@ class OCPSolution:
         self.infeasibilities: list = []
         self.boundary: BoundaryAnalysis | None = None
         self.method = ""
+        self._bc_residuals: tuple[np.ndarray, float] = (np.zeros(0), 1.0)
 
     @classmethod
     def _from_grid(cls, ocp: OCP, tr, V, f, success, status, stats) -> OCPSolution:

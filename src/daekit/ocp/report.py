@@ -70,11 +70,15 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
             if not pre and worst > 1e-4 * max(1.0, float(np.max(np.abs(v0), initial=1.0))):
                 lines.append(
                     "WARNING: a dropped condition does not hold at the solution: it was implied "
-                    "only locally (another branch of the constraints was reached); give a guess "
-                    "closer to the intended solution or state the conditions differently."
+                    "only locally (another branch of the constraints was reached). After a "
+                    "successful solve, solve() repeats it once imposing the violated condition; "
+                    "otherwise give a guess closer to the intended solution or state the "
+                    "conditions differently."
                 )
         else:
             lines.append(f"Boundary conditions: {n}, independent on the invariant manifold.")
+        if ba.notes:
+            lines.append("Boundary analysis: " + "; ".join(ba.notes) + ".")
     lines.append(
         f"IPOPT: {status} after {stats.get('iter_count', '?')} iterations "
         f"({stats['t_total']:.3g} s in all, {stats['t_build']:.3g} s to build the NLP)."

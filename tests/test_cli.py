@@ -113,3 +113,4 @@ def test_tour_short_run(tmp_path, capsys):
         assert by["delta robot", remedy].max_c < 1e-9
     assert (tmp_path / "pendulum3d_drift.png").exists()
     assert (tmp_path / "delta_robot_drift.png").exists()
+    assert (tmp_path / "pendulum3d_structure.png").exists()

@@ -300,6 +300,9 @@ class Analysis:
     definitions : list of str
         Differentiated equations that define a derivative explicitly (``p' = v``): the reduced
         form substitutes them, so they are not consistency conditions to watch.
+    sigma : list of (equation, unknown, order)
+        The sparse Sigma matrix by names (highest derivative order of each unknown in each
+        equation); :meth:`plot_structure` draws it.
     """
 
     model_name: str
@@ -319,10 +322,18 @@ class Analysis:
     n_inputs: int = 0
     input_derivatives: dict[str, int] = field(default_factory=dict)
     definitions: list[str] = field(default_factory=list)
+    sigma: list[tuple[str, str, int]] = field(default_factory=list)
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
         return _explain(self)
+
+    def plot_structure(self, ax=None):
+        """The Sigma matrix as a figure: derivative orders, the highest-value transversal,
+        and the offsets ``c`` (right) and ``d`` (top). See :func:`daekit.plot.plot_structure`."""
+        from .plot import plot_structure
+
+        return plot_structure(self, ax=ax)
 
     def to_dict(self) -> dict:
         """The machine-readable summary printed by ``daekit analyze --json``."""
@@ -419,6 +430,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(
+        sigma=[(eq_names[i], var_names[j], int(k))
+               for i, j, k in zip(inc.rows.tolist(), inc.cols.tolist(), inc.vals.tolist())],
         input_derivatives=_input_derivatives(model, c),
         definitions=[eq_names[i] for i in _definitions(model, inc, sig)],
         model_name=model.name,

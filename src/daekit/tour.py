@@ -38,6 +38,13 @@ class RemedyResult:
     trajectory: object = None
 
 
+def _save(fig, path: Path, dpi: int = 100) -> None:
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
 def _say(text: str = "") -> None:
     print(text, flush=True)
 
@@ -56,17 +63,17 @@ def _bar(enabled: bool, label: str):
     return done
 
 
+def _level_columns(traj, order: int) -> list[int]:
+    """Invariants of one level: position (order 0, c) or velocity (order 1, c')."""
+    from daekit.plot import invariant_order
+
+    return [j for j, name in enumerate(traj.invariant_names) if invariant_order(name)[0] == order]
+
+
 def _max_inv(traj, order: int) -> float:
     """Largest |invariant| among the position-level (order 0) or velocity-level (1) ones."""
-    vals = []
-    for j, name in enumerate(traj.invariant_names):
-        level = 1 if name.startswith("d/dt ") else (0 if not name.startswith("d") or "/dt" not in name
-                                                     else 2)
-        if name.startswith(("kinematics", "arm_kinematics", "platform_kinematics")):
-            continue  # trivial first-order relations, zero to rounding in every run
-        if level == order:
-            vals.append(np.max(np.abs(traj.invariants[:, j])))
-    return float(max(vals)) if vals else float("nan")
+    cols = _level_columns(traj, order)
+    return float(np.max(np.abs(traj.invariants[:, cols]))) if cols else float("nan")
 
 
 def _energy_pendulum(traj, m=1.0, g=9.81) -> np.ndarray:
@@ -160,9 +167,7 @@ def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
     for row in rows:
         tr = row.trajectory
         for ax, order in zip(axes, (0, 1)):
-            cols = [j for j, n in enumerate(tr.invariant_names)
-                    if not n.startswith(("kinematics", "arm_kin", "platform_kin"))
-                    and (n.startswith("d/dt ") if order else not n.startswith("d"))]
+            cols = _level_columns(tr, order)
             if not cols:
                 continue
             y = np.max(np.abs(tr.invariants[:, cols]), axis=1)
@@ -176,8 +181,7 @@ def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
         ax.grid(True, which="major", alpha=0.3)
         ax.set_ylim(1e-17, 1e0)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, dpi=110)
 
 
 def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool = False,
@@ -203,6 +207,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     m = dk.examples.pendulum3d()
     a = dk.analyze(m)
     _say(a.explain())
+    _save(a.plot_structure(), out / "pendulum3d_structure.png")
     _say("")
     r = dk.reduce_index(m)
     _say(f"Reduced: {r}. Consistency conditions: {', '.join(r.invariant_names)}.")
@@ -220,7 +225,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _say(_table(prow))
     _drift_figure(prow, f"3D pendulum, {t_end:g} s, rtol = atol = 1e-6: constraint drift",
                   out / "pendulum3d_drift.png")
-    prow[0].trajectory.plot(["p"]).savefig(out / "pendulum3d_positions.png", dpi=100)
+    _save(prow[0].trajectory.plot(["p"]), out / "pendulum3d_positions.png")
 
     # ------------------------------------------------------------------ delta robot
     _say("")
@@ -230,6 +235,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     md = dk.examples.delta_robot()
     ad = dk.analyze(md)
     _say(ad.explain())
+    _save(ad.plot_structure(), out / "delta_robot_structure.png")
     # The motors are off (u = 0): the robot swings about its hanging equilibrium, where the
     # arms' gravity torque balances the platform's weight (found from the home configuration).
     from scipy.optimize import brentq

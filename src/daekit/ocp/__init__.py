@@ -4,8 +4,9 @@ The model is reduced to index 1 (or given as a :class:`~daekit.reduced.ReducedDA
 optimal control problem is transcribed (direct collocation with Radau IIA by default, or
 multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
 (invariants) are imposed at the initial time only, and boundary conditions that are redundant
-with them (full periodicity of a constrained mechanism) are detected and dropped; the
-solution's :attr:`OCPSolution.report` says what was done.
+with them (full periodicity of a constrained mechanism) are detected and dropped (a dropped
+condition the solution turns out to violate is imposed in a second solve); the solution's
+:attr:`OCPSolution.report` says what was done.
 
 Example: swing a planar pendulum (index 3 in Cartesian coordinates: unit mass and rod, a
 tangential force ``u``) from rest at the bottom to rest at 30 degrees in 2 s with the least
@@ -521,11 +522,26 @@ class OCP:
 
     # ------------------------------------------------------------------ analysis
     def boundary_analysis(self, guess=None) -> BoundaryAnalysis:
-        """Rank of the boundary conditions restricted to the invariant manifold, at the guess.
+        """Rank of the boundary conditions restricted to the invariant manifold, near the guess.
 
         ``a.rank < a.n_conditions`` means that imposing all of them together with the
         invariants is redundant (the naive NLP is rank deficient); ``a.kept`` is the subset
-        :meth:`solve` imposes.
+        :meth:`solve` imposes. The rank is evaluated where the conditions hold: at the guess's
+        end points projected onto the set where the algebraic equations, the invariants and
+        all the conditions hold, and at a random point of that set nearby (``a.ranks``; the
+        larger counts). The subset follows an order of preference (``a.preference``):
+        conditions on positions before those on velocities (derivative level of the
+        variables involved, ``p' = v`` makes ``v`` a velocity), then the order given.
+
+        >>> import casadi as ca, daekit as dk
+        >>> m = dk.examples.pendulum3d()
+        >>> ocp = dk.OCP(m, t_final=2.0, intervals=10)
+        >>> _ = ocp.minimize(integral=ca.sumsqr(m.variables["u"].sym))
+        >>> _ = ocp.initial({"p": [0.6, 0.0, -0.8], "v": [0.0, 0.0, 0.0]})
+        >>> _ = ocp.final({"p[0]": -0.6, "v": [0.0, 0.0, 0.0]})
+        >>> a = ocp.boundary_analysis()
+        >>> a.rank, [a.labels[i] for i in a.dropped]   # on the sphere, with p.v = 0
+        (7, ['initial p[2]', 'initial v[2]', 'final v[2]'])
         """
         from .guess import make_guess
 
@@ -615,7 +631,13 @@ class OCP:
             in the simulation) and constant guesses for states at ``t = 0``.
         redundancy : {"drop", "keep"}
             "drop" imposes an independent subset of the boundary conditions on the invariant
-            manifold (see :mod:`daekit.ocp.consistency`); "keep" imposes all (naive).
+            manifold (see :mod:`daekit.ocp.consistency` and :meth:`boundary_analysis`); if a
+            dropped condition then does not hold at the solution (residual above
+            ``1e-4 * max(1, |x(0)|)``: another branch of the constraints), the problem is solved
+            once more from that solution with the violated conditions imposed (the report
+            says so and ``stats["resolved"]`` holds the first objective and the conditions
+            forced); if they still do not hold, ``success`` is False and the report names
+            them. "keep" imposes all (naive).
         check : bool
             First check that the initial (final) conditions, the algebraic equations, the
             invariants, the bounds and the path constraints can hold together at ``t = 0``
@@ -811,7 +833,9 @@ class OCPSolution:
         initial guess came from), ``t_build``, ``t_solve``, ``t_total``, ``n_variables``,
         ``n_constraints``, ``max_constraint_violation``, ``max_bound_violation``,
         ``max_invariant_t0``, ``max_invariant`` (on the grid), ``n_boundary_conditions``,
-        ``boundary_rank``, ``boundary_dropped``.
+        ``boundary_rank``, ``boundary_dropped``, and ``resolved`` (only after a second solve
+        that imposed violated dropped conditions: ``first_objective``, ``first_status``,
+        ``first_iter_count``, ``forced``).
     method : str
         ``"collocation"`` or ``"shooting"``.
     report : str

@@ -12,8 +12,23 @@ many of the periodicity conditions are independent: the rest are implied and, im
 anyway, make the NLP's constraint Jacobian (nearly) rank deficient, which IPOPT punishes
 with failed restorations.
 
-:func:`analyze_boundary` computes ``A = J_bc * blockdiag(N_0, N_T)`` at the initial guess and
-keeps an independent subset of the rows (column-pivoted QR of ``A^T``).
+:func:`analyze_boundary` computes ``A = J_bc * blockdiag(N_0, N_T)`` and keeps an independent
+subset of the rows (:func:`independent_rows`: a greedy, column-pivoted-QR-like choice that
+follows an order of preference).
+
+*Where* ``A`` is evaluated matters: the rank of a set of conditions on the manifold can only
+drop at special points, and the point that counts is the solution's, where the conditions
+hold. Final ``v = 0`` of a pendulum (``p.v = 0`` on the manifold) is 2 conditions where
+``v = 0`` but 3 where ``v != 0``; with a final ``p[0]`` also given, a guess whose final
+velocity is not zero makes ``p[0]`` look implied by the three ``v``'s, and dropping it lets the
+solver end anywhere. :meth:`daekit.ocp.OCP.boundary_analysis` therefore evaluates ``A`` at the
+guess's end points projected (:func:`project_ends`, Gauss-Newton) onto the set where the
+algebraic equations, the invariants and the given conditions hold, and at a random point of
+that set nearby (which a special projected point, e.g. a planar guess of a 3D motion, cannot
+fool); the rank is the larger of the two. Among the conditions it prefers position-level ones
+to velocity-level ones, then the order given. After solving, a dropped condition that does not
+hold (the solution reached a branch where it is not implied, e.g. ``p[2] = +0.8`` instead of
+``-0.8`` when ``p[0], p[1]`` are imposed on a sphere) is imposed in a second solve.
 """
 
 from __future__ import annotations

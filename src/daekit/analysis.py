@@ -30,7 +30,8 @@ __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differen
            "is_index1"]
 
 RANK_RTOL = 1e3 * np.finfo(float).eps
-DENSE_LIMIT = 400
+DENSE_LIMIT = 400  # largest BLT block of the system Jacobian checked by a dense SVD
+EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
 
 
 # ----------------------------------------------------------------------------- numerics
@@ -139,9 +140,10 @@ class EasyTest:
 def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTest:
     """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``.
 
-    The Jacobian is evaluated sparsely. Up to ``DENSE_LIMIT`` equations its rank comes from an
-    SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and a sparse LU of each
-    diagonal block of its block triangular form.
+    The Jacobian is evaluated sparsely. Up to ``EASY_DENSE_LIMIT`` equations its rank comes
+    from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the conditioning of
+    each diagonal block of its block triangular form (dense SVD up to ``DENSE_LIMIT``, sparse LU
+    beyond).
 
     Example
     -------
@@ -160,12 +162,13 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     pt = _Point(model, point, seed)
     jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
     eq_names = model.equation_names
-    if n <= DENSE_LIMIT:
-        dense = jac.toarray()
-        rank, rcond = numeric_rank(dense)
+    if n <= EASY_DENSE_LIMIT:
+        u, sv, _ = np.linalg.svd(_equilibrate(jac.toarray()))
+        tol = RANK_RTOL * n * sv[0] if sv.size and sv[0] > 0 else np.inf
+        rank = int(np.sum(sv > tol))
+        rcond = float(sv[-1] / sv[0]) if rank == n else 0.0
         names: list[str] = []
         if rank < n:
-            u, _, _ = np.linalg.svd(_equilibrate(dense))
             weight = np.linalg.norm(u[:, rank:], axis=1)
             names = [eq_names[i] for i in np.nonzero(weight > 1e-8)[0]]
     else:

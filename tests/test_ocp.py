@@ -581,3 +581,27 @@ def test_independent_rows_prefers_and_forces():
     C1 = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     C2 = np.array([[1.0, 0.0], [2.0, 0.0], [1.0, 1.0]])
     assert independent_rows(C1, others=[C2]) == (2, [0, 2], [1])
+
+
+def test_failed_guess_simulation_falls_back_to_a_consistent_final_point(monkeypatch):
+    """Should the guess simulation fail, the rest of the guess runs straight to the nearest
+    point that satisfies the invariants and the final conditions (not a state held constant)."""
+    from daekit.ocp import guess as guess_mod
+
+    real = guess_mod._GuessSimulator.interval
+
+    def failing(self, x, z, w, tk, h):
+        if tk > 0.25:
+            raise RuntimeError("IDA_CONV_FAIL (simulated)")
+        return real(self, x, z, w, tk, h)
+
+    monkeypatch.setattr(guess_mod._GuessSimulator, "interval", failing)
+    ocp = pendulum3d_rest_to_rest()
+    ocp._prepare()
+    g = guess_mod.make_guess(ocp, None)
+    assert "failed at t = 0.2667" in g.note and "consistent final point" in g.note
+    xT = g.fun(np.array([2.0]))[0][:, 0]
+    assert np.max(np.abs(xT - [-0.6, 0.0, -0.8, 0.0, 0.0, 0.0])) < 1e-8
+    sol = ocp.solve()
+    assert sol.success and "straight line" in sol.report
+    assert sol.objective == pytest.approx(15.4575249, rel=1e-6)  # angle_reference(), measured

@@ -7,7 +7,11 @@ their own grid:
   point (least squares on the initial conditions, then on the distance to the user's guesses)
   that satisfies the algebraic equations and the invariants, found with a small IPOPT problem.
   It then integrates the index-1 system with IDAS interval by interval with the guessed
-  controls held constant.
+  controls held constant (the algebraic unknowns re-solved by Newton at each interval start,
+  see :class:`_GuessSimulator`). Should the integration fail, the rest of the guess is a
+  straight line to the nearest point that satisfies the algebraic equations, the invariants
+  and the final conditions at ``t = T`` (held constant when there is no such point nearby);
+  the guess's note (in the report) says so.
 - a :class:`daekit.Trajectory` from :func:`daekit.simulate` (the user's own simulation with
   the controls of their choice): its values, read by the original model's names, are
   interpolated linearly onto the NLP's grid.
@@ -153,7 +157,19 @@ def make_guess(ocp, guess) -> Guess:
         x, z = xf[:, -1], zf[:, -1]
     note = "simulation with the guessed controls"
     if failed is not None:
-        note += f" (stopped at t = {failed[0]:.4g}; held constant afterwards)"
+        tf = failed[0]
+        i0 = next(i for i, t in enumerate(ts) if t > tf)
+        xe, ze, ok = _consistent_end(ocp, Xs[i0 - 1], Zs[i0 - 1], Ws[-1], p, T)
+        if ok:
+            for i in range(i0, len(ts)):
+                s_ = (ts[i] - tf) / (T - tf)
+                Xs[i] = (1 - s_) * Xs[i0 - 1] + s_ * xe
+                Zs[i] = (1 - s_) * Zs[i0 - 1] + s_ * ze
+            note += (f" (the integration failed at t = {tf:.4g}: {failed[1]}; from there a "
+                     "straight line to a consistent final point that meets the final conditions)")
+        else:
+            note += f" (stopped at t = {tf:.4g}: {failed[1]}; held constant afterwards)"
+
     def cols(vs, n):  # list of (n,) arrays -> (n, len) even when n == 0
         return np.asarray(vs, float).reshape(len(vs), n).T
 
@@ -302,6 +318,36 @@ class _GuessSimulator:
                 continue
             return xf, zf
         raise err if err is not None else RuntimeError("integration failed")
+
+
+def _consistent_end(ocp, x, z, w, p, T):
+    """The point nearest ``(x, z)`` (Gauss-Newton, least-norm steps) where the algebraic
+    equations, the invariants and the final conditions hold at ``t = T``; ``ok`` is False when
+    they cannot be met (the caller then holds the state constant)."""
+    from .consistency import project_ends
+
+    a = ocp._aug
+    n = a.nx + a.nz + a.nw
+    v = ca.SX.sym("v", n)
+    rows = ocp._bc_fun(v, v, ca.DM(p), T)
+    fin = [rows[i] for i, k in enumerate(ocp._bc_kinds) if k == "final"]
+    eqs = ca.vertcat(ocp._man_fun(T, v, ca.DM(p)), *fin)
+    if eqs.numel() == 0:
+        return x, z, False
+    F = ca.Function("end", [v], [eqs, ca.jacobian(eqs, v)])
+    nw = a.nw
+
+    def fun(_v0, vT, _p, _T):  # only the final point moves; w is held at its value
+        r, J = F(vT)
+        J = np.asarray(J, float)
+        J[:, n - nw:] = 0.0
+        return np.asarray(r, float), np.hstack([np.zeros_like(J), J])
+
+    v0 = np.concatenate([x, z, w])
+    _, vT, res = project_ends(fun, v0, v0, p, T, tol=1e-9)
+    if not (res < 1e-6 and np.all(np.isfinite(vT))):
+        return x, z, False
+    return vT[: a.nx], vT[a.nx:a.nx + a.nz], True
 
 
 def _consistent_start(ocp, xg, zg, w0, p):

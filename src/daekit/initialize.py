@@ -18,16 +18,25 @@ carrying it (at a Gauss--Newton stationary point the residual lies in the left n
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from .errors import DaekitError, InitializationError
 
 __all__ = ["InitialValues", "initialize"]
+
+#: Systems with at least this many unknowns ``nx + nz`` take the sparse path (sparse
+#: Jacobians, SuperLU on KKT systems, a matched basis of the consistency rows); smaller ones
+#: the dense SVD/QR path. Both give the same values; tests force either by changing this.
+_SPARSE_MIN_UNKNOWNS = 300
 
 
 @dataclass
@@ -190,7 +199,7 @@ def initialize(
     for k, v in (guess or {}).items():
         guess_items += _name_values(r, k, v, "guess")
     fixed_names = [f[0] for f in fixed_items]
-    dup = {nm for nm in fixed_names if fixed_names.count(nm) > 1}
+    dup = {nm for nm, c in Counter(fixed_names).items() if c > 1}
     if dup:
         raise InitializationError(f"fixed: {sorted(dup)} given more than once")
     # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols are
@@ -212,12 +221,17 @@ def initialize(
                     f"each other: in this system both are the same quantity; fix only one"
                 )
 
+    def on_w_all(items) -> ca.SX:  # one substitution for all elements (not one per element)
+        if not items:
+            return ca.SX(0, 1)
+        return on_w(ca.vertcat(*[ca.vec(ca.densify(ca.SX(e))) for _, e, _ in items]))
+
     alg = on_w(r.alg)
     inv = on_w(r.invariants) if r.invariants.numel() else ca.SX(0, 1)
-    fix_expr = ca.vertcat(*[on_w(e) for _, e, _ in fixed_items]) if fixed_items else ca.SX(0, 1)
+    fix_expr = on_w_all(fixed_items)
     fix_val = np.array([v for _, _, v in fixed_items])
     h = ca.vertcat(alg, inv, fix_expr)
-    G = ca.vertcat(*[on_w(e) for _, e, _ in guess_items]) if guess_items else ca.SX(0, 1)
+    G = on_w_all(guess_items)
     gval = np.array([v for _, _, v in guess_items])
     row_names = (
         [f"alg[{i}]" for i in range(alg.numel())]
@@ -236,14 +250,22 @@ def initialize(
     for nm, _, v in guess_items + fixed_items:
         if nm in direct:
             w0[direct[nm]] = v
+    use_sparse = n >= _SPARSE_MIN_UNKNOWNS
+    J_pattern = _ccs(hfun.sparsity_out(1))
+    JG_pattern = _ccs(gfun.sparsity_out(1))
     # z from alg with x frozen when alg is index 1 (a few Newton steps, failures ignored)
-    w0 = _newton_z(hfun, w0, nx, n_alg)
+    w0 = _newton_z(hfun, w0, nx, n_alg, J_pattern if use_sparse else None)
 
     def hval(wv):
         hv, J = hfun(wv)
         hv = np.asarray(hv, dtype=float).ravel()
         hv[n_alg + n_inv:] -= fix_val
+        if use_sparse:
+            return hv, _to_csc(J, J_pattern)
         return hv, np.asarray(J.full() if hasattr(J, "full") else J, dtype=float)
+
+    def jac_finite(J) -> bool:
+        return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
 
     wv = w0.copy()
     it = 0
@@ -252,13 +274,16 @@ def initialize(
     converged = False
     history: list[float] = []
     for it in range(1, max_iter + 1):  # noqa: B007
-        if not np.all(np.isfinite(hv)) or not np.all(np.isfinite(J)):
+        if not np.all(np.isfinite(hv)) or not jac_finite(J):
             bad = [row_names[i] for i in np.where(~np.isfinite(hv))[0]][:5]
             raise InitializationError(
                 f"initialize: the equations {bad or '(Jacobian)'} are not finite at the current "
                 "point; give guesses closer to a consistent state"
             )
-        d = _gn_step(hv, J, gfun, wv, gval)
+        if use_sparse:
+            d = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval)
+        else:
+            d = _gn_step(hv, J, gfun, wv, gval)
         normh = np.linalg.norm(hv)
         alpha = 1.0
         for _ in range(30):
@@ -285,9 +310,27 @@ def initialize(
     if not converged and res > 1e-8 * scale:
         _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it)
 
-    # redundant fixed values: rows of J dependent on the rows before them
-    redundant = _dependent_fixed(J, n_alg + n_inv, fixed_names)
-    free = _free_states(r, J[: n_alg + n_inv], nx, set(fixed_names))
+    found = None
+    if use_sparse:
+        # free states and redundant fixed values from a sparse basis of the consistency rows
+        found = _sparse_free_redundant(J, n_alg, n_inv, nx, list(r.x_names), fixed_names)
+        if found is None:  # degenerate (rank-deficient) consistency rows: dense analysis
+            J = J.toarray()
+    if found is not None:
+        free, redundant = found
+    else:
+        # redundant fixed values: rows of J dependent on the rows before them
+        redundant = _dependent_fixed(J, n_alg + n_inv, fixed_names)
+        free = _free_states(r, J[: n_alg + n_inv], nx, set(fixed_names))
+
+    # fixed values of states / algebraic unknowns themselves are held to the last bit (the
+    # iteration leaves them within rounding of the value)
+    position = {ca.SX(r.x[i]).element_hash(): i for i in range(nx)}
+    position.update({ca.SX(r.z[i]).element_hash(): nx + i for i in range(nz)})
+    for _, e, v in fixed_items:
+        e = ca.SX(e)
+        if e.is_symbolic() and e.element_hash() in position:
+            wv[position[e.element_hash()]] = v
 
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = _evaluate_variables(r, t0, x0, z0, u0, pv)
@@ -319,8 +362,11 @@ def _gn_step(hv, J, gfun, wv, gval) -> np.ndarray:
     return dp
 
 
-def _newton_z(hfun, w0, nx, n_alg, iters: int = 20) -> np.ndarray:
-    """Solve alg for z at fixed x (best effort; the joint iteration corrects anything left)."""
+def _newton_z(hfun, w0, nx, n_alg, pattern=None, iters: int = 20) -> np.ndarray:
+    """Solve alg for z at fixed x (best effort; the joint iteration corrects anything left).
+
+    With ``pattern`` (the CCS pattern of ``hfun``'s Jacobian) the Jacobian stays sparse and a
+    square ``d alg / d z`` is factorized by SuperLU instead of a dense least-squares solve."""
     n = w0.size
     if n_alg == 0 or n == nx:
         return w0
@@ -328,14 +374,88 @@ def _newton_z(hfun, w0, nx, n_alg, iters: int = 20) -> np.ndarray:
     for _ in range(iters):
         hv, J = hfun(w)
         g = np.asarray(hv, dtype=float).ravel()[:n_alg]
-        Jz = np.asarray(J.full(), dtype=float)[:n_alg, nx:]
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(Jz))):
+        if pattern is None:
+            Jz = np.asarray(J.full(), dtype=float)[:n_alg, nx:]
+            ok = np.all(np.isfinite(Jz))
+        else:
+            Jz = _to_csc(J, pattern)[:n_alg, nx:].tocsc()
+            ok = np.all(np.isfinite(Jz.data))
+        if not (np.all(np.isfinite(g)) and ok):
             return w0
         if np.max(np.abs(g), initial=0.0) < 1e-14:
             break
-        dz = np.linalg.lstsq(Jz, -g, rcond=1e-12)[0]
+        if pattern is None:
+            dz = np.linalg.lstsq(Jz, -g, rcond=1e-12)[0]
+        elif Jz.shape[0] == Jz.shape[1]:
+            try:
+                dz = spla.splu(Jz).solve(-g)
+            except RuntimeError:  # structurally or exactly singular: leave it to Gauss-Newton
+                return w0
+        else:
+            dz = spla.lsmr(Jz, -g, atol=1e-14, btol=1e-14)[0]
         w[nx:] += dz
     return w if np.all(np.isfinite(w)) else w0
+
+
+def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    colind, row = pattern.get_ccs()
+    return (np.asarray(colind, dtype=np.int64), np.asarray(row, dtype=np.int64),
+            (pattern.size1(), pattern.size2()))
+
+
+def _to_csc(M: ca.DM, ccs) -> sp.csc_matrix:
+    """A CasADi DM with the CCS pattern ``ccs`` (from :func:`_ccs`) as a SciPy CSC matrix."""
+    colind, row, shape = ccs
+    data = np.asarray(M.nonzeros(), dtype=float)
+    return sp.csc_matrix((data, row, colind), shape=shape)
+
+
+def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, refine: int = 4) -> np.ndarray:
+    """The Gauss--Newton step of :func:`_gn_step`, sparse.
+
+    ``min ||G + J_G d - guess||^2 (+ ||d||^2 without guesses)  s.t.  h + J d = 0`` through
+    its KKT system ``[[W, J^T], [J, 0]] [d; y] = [-J_G^T (G - guess); -h]``, ``W = J_G^T J_G``
+    (``I`` without guesses: the minimum-norm step). The matrix is factorized by SuperLU after
+    a small proximal regularization ``[[W + eps I, J^T], [J, -mu I]]`` (quasi-definite, hence
+    nonsingular even for redundant rows or unguessed directions); a few steps of iterative
+    refinement against the unregularized system remove the regularization's bias. ``d`` stays
+    orthogonal to the directions that neither the constraints nor the guesses see, as the
+    dense SVD step's does."""
+    n, m = wv.size, J.shape[0]
+    if gval.size:
+        Gv, JGd = gfun(wv)
+        JG = _to_csc(JGd, JG_ccs)
+        W = (JG.T @ JG).tocsc()
+        b1 = -(JG.T @ (np.asarray(Gv, dtype=float).ravel() - gval))
+        sW = max(1.0, float(abs(W).max())) if W.nnz else 1.0
+        eps = 1e-6 * sW
+    else:
+        W = sp.identity(n, format="csc")
+        b1 = np.zeros(n)
+        sW, eps = 1.0, 0.0
+    if m == 0:
+        Wr = (W + eps * sp.identity(n)).tocsc()
+        return spla.splu(Wr).solve(b1) if n else np.zeros(0)
+    sJ = max(1.0, float(abs(J).max())) if J.nnz else 1.0
+    mu = 1e-8 * sJ**2 / sW
+    Jc = J.tocsc()
+    K_true = sp.bmat([[W, Jc.T], [Jc, sp.csc_matrix((m, m))]], format="csc")
+    K_reg = sp.bmat(
+        [[W + eps * sp.identity(n), Jc.T], [Jc, -mu * sp.identity(m)]], format="csc"
+    )
+    b = np.concatenate([b1, -hv])
+    try:
+        lu = spla.splu(K_reg, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
+    except RuntimeError:  # pragma: no cover - the regularized matrix is nonsingular
+        return spla.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0]
+    sol = lu.solve(b)
+    nb = np.linalg.norm(b)
+    for _ in range(refine):
+        res = b - K_true @ sol
+        if np.linalg.norm(res) <= 1e-15 * nb:
+            break
+        sol = sol + lu.solve(res)
+    return sol[:n]
 
 
 def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> None:
@@ -347,8 +467,9 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
     cond_rows = [row_names[i] for i in involved if n_alg <= i < n_alg + n_inv]
     alg_rows = [row_names[i] for i in involved if i < n_alg and mag[i] > 1e-3 * mag.max()]
     lhs = (J.T @ hv) if J.size else np.zeros(0)
+    jnorm = spla.norm(J) if sp.issparse(J) else np.linalg.norm(J)
     stationary = np.linalg.norm(lhs) <= 1e-6 * max(np.linalg.norm(hv), 1e-300) * max(
-        1.0, np.linalg.norm(J)
+        1.0, jnorm
     )
     if fixed_rows:
         fx = [(fixed_items[i - n_alg - n_inv][0], fixed_items[i - n_alg - n_inv][2])
@@ -419,6 +540,195 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
     _, _, piv = scipy.linalg.qr(Jred * colw, mode="economic", pivoting=True)
     dependent = set(piv[:rank].tolist())
     return {r.x_names[i] for i in range(nx) if i not in dependent}
+
+
+def _greedy_dependent_rows(A: np.ndarray, tol: float) -> list[int]:
+    """Rows of the dense ``A`` within ``tol`` of the span of the *accepted* rows before them.
+
+    Gram--Schmidt in row order (twice, for orthogonality to working precision): row ``k`` is
+    accepted when its distance from the span of the accepted rows exceeds ``tol``."""
+    k, n = A.shape
+    Q = np.zeros((min(k, n), n))
+    rank = 0
+    dependent = []
+    for i in range(k):
+        a = np.array(A[i], dtype=float)
+        if rank:
+            Qr = Q[:rank]
+            a -= Qr.T @ (Qr @ a)
+            a -= Qr.T @ (Qr @ a)
+        nrm = float(np.linalg.norm(a))
+        if nrm <= tol or rank == Q.shape[0]:
+            dependent.append(i)
+        else:
+            Q[rank] = a / nrm
+            rank += 1
+    return dependent
+
+
+def _greedy_dependent_sparse(F: sp.csr_matrix, tol: float) -> list[int]:
+    """:func:`_greedy_dependent_rows` for a sparse ``F`` whose rows are mostly (multiples of)
+    unit vectors, as fixed states give.
+
+    A row with one entry in a column that no row with several entries touches depends only on
+    earlier rows with that same single column; only the rows that touch the other rows'
+    columns go through dense Gram--Schmidt (on those columns only)."""
+    F = F.tocsr()
+    F.sum_duplicates()
+    k = F.shape[0]
+    counts = np.diff(F.indptr)
+    multi = np.where(counts >= 2)[0]
+    touched = np.zeros(F.shape[1], dtype=bool)
+    if multi.size:
+        touched[np.unique(F[multi].indices)] = True
+    dense_rows: list[int] = []
+    dependent: list[int] = []
+    seen: set[int] = set()
+    for i in range(k):
+        lo, hi = F.indptr[i], F.indptr[i + 1]
+        if hi == lo:
+            dependent.append(i)
+        elif hi - lo == 1 and not touched[F.indices[lo]]:
+            j = int(F.indices[lo])
+            if abs(F.data[lo]) <= tol or j in seen:
+                dependent.append(i)
+            else:
+                seen.add(j)
+        else:
+            dense_rows.append(i)
+    if dense_rows:
+        cols = np.where(touched)[0]
+        sub = F[dense_rows][:, cols].toarray() if cols.size else np.zeros((len(dense_rows), 0))
+        # single-entry rows outside the touched columns (accepted above) are orthogonal to
+        # every row here, so they do not change the distances
+        dependent += [dense_rows[i] for i in _greedy_dependent_rows(sub, tol)]
+    return sorted(dependent)
+
+
+def _drop_small(A: sp.csr_matrix, tol: float) -> sp.csr_matrix:
+    A = A.tocsr(copy=True)
+    A.data[np.abs(A.data) <= tol] = 0.0
+    A.eliminate_zeros()
+    return A
+
+
+def _place_rows(idx: np.ndarray, rows: np.ndarray, n_rows: int) -> sp.csr_matrix:
+    """Sparse ``n_rows``-row matrix with the dense ``rows`` at row positions ``idx``."""
+    P = sp.csr_matrix((np.ones(idx.size), (idx, np.arange(idx.size))), shape=(n_rows, idx.size))
+    return (P @ sp.csr_matrix(rows)).tocsr()
+
+
+def _well_conditioned(lu, A: sp.csc_matrix, limit: float = 1e10) -> bool:
+    """1-norm condition estimate of the square ``A`` from its SuperLU factors."""
+    nA = A.shape[0]
+    if nA == 0:
+        return True
+    inv = spla.LinearOperator(
+        (nA, nA), matvec=lu.solve, rmatvec=lambda b: lu.solve(b, trans="T"), dtype=float
+    )
+    try:
+        cond = spla.onenormest(inv) * spla.norm(A, 1)
+    except Exception:  # pragma: no cover - estimator trouble: take the dense path
+        return False
+    return bool(np.isfinite(cond) and cond < limit)
+
+
+def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
+    """Free states and redundant fixed values of the sparse path, or ``None`` when the
+    consistency rows are degenerate (then the caller falls back to the dense analysis).
+
+    1. ``z`` is eliminated with SuperLU on ``d alg / d z`` (square and nonsingular in a
+       ReducedDAE): a row ``(r_x, r_z)`` becomes ``r_x - r_z A_z^{-1} A_x`` (solves only for
+       rows that involve ``z``).
+    2. The reduced consistency rows ``C`` (invariants on ``x``) get a basis: a minimum-weight
+       full bipartite matching of rows to states (cost ``-log |c_ij|`` relative to the row's
+       largest entry, plus a penalty on states the user fixed, so that those stay free when
+       they can) chooses the dependent states ``D``; ``C_D`` must be well conditioned
+       (SuperLU + a 1-norm condition estimate). The other states are free: fixing them
+       determines the rest through ``C_D``.
+    3. A fixed row ``f`` lies in the span of the consistency rows iff its coordinates on the
+       free states, ``f_N - f_D C_D^{-1} C_N``, vanish; redundant fixed values are the rows
+       whose coordinates depend on those of the rows before them
+       (:func:`_greedy_dependent_sparse`).
+    """
+    J = J.tocsr()
+    n = J.shape[1]
+    nz = n - nx
+    n_cons = n_alg + n_inv
+    if n_alg != nz:
+        return None
+    scale = max(1.0, float(abs(J).max())) if J.nnz else 1.0
+    Ji, Jf = J[n_alg:n_cons], J[n_cons:]
+    if nz:
+        Az = J[:n_alg, nx:].tocsc()
+        try:
+            lu_a = spla.splu(Az)
+        except RuntimeError:
+            return None
+        if not _well_conditioned(lu_a, Az):
+            return None
+        Ax = J[:n_alg, :nx].tocsc()
+
+        def elim(rows: sp.csr_matrix) -> sp.csr_matrix:
+            rx, rz = rows[:, :nx].tocsr(), rows[:, nx:].tocsr()
+            idx = np.unique(rz.nonzero()[0])
+            if idx.size == 0:
+                return rx
+            Y = lu_a.solve(np.asarray(rz[idx].T.toarray()), trans="T")
+            corr = np.asarray((Ax.T @ Y).T)
+            return (rx - _place_rows(idx, corr, rows.shape[0])).tocsr()
+    else:
+
+        def elim(rows: sp.csr_matrix) -> sp.csr_matrix:
+            return rows[:, :nx].tocsr()
+
+    drop = 1e-14 * scale
+    C = _drop_small(elim(Ji), drop)
+    n_c = C.shape[0]
+    fixed_set = set(fixed_names)
+    if n_c:
+        if n_c > nx:
+            return None
+        A = abs(C).tocsr()
+        rowmax = np.asarray(A.max(axis=1).toarray()).ravel()
+        if np.any(rowmax <= 0):
+            return None
+        rows_of = np.repeat(np.arange(n_c), np.diff(A.indptr))
+        penalty = np.array([np.log(1e2) if nm in fixed_set else 0.0 for nm in x_names])
+        cost = np.log(rowmax[rows_of]) - np.log(A.data) + 1.0 + penalty[A.indices]
+        B = sp.csr_matrix((cost, A.indices, A.indptr), shape=A.shape)
+        try:
+            _, D = min_weight_full_bipartite_matching(B)
+        except ValueError:  # structurally rank deficient
+            return None
+        D = np.asarray(D)
+        CD = C[:, D].tocsc()
+        try:
+            lu_c = spla.splu(CD)
+        except RuntimeError:
+            return None
+        if not _well_conditioned(lu_c, CD):
+            return None
+    else:
+        D = np.zeros(0, dtype=int)
+    in_D = np.zeros(nx, dtype=bool)
+    in_D[D] = True
+    free = {x_names[i] for i in range(nx) if not in_D[i]}
+    if not fixed_names:
+        return free, []
+    Ncols = np.where(~in_D)[0]
+    F = _drop_small(elim(Jf), drop)
+    FN = F[:, Ncols].tocsr()
+    if D.size:
+        FD = F[:, D].tocsr()
+        idx = np.unique(FD.nonzero()[0])
+        if idx.size:
+            Y = lu_c.solve(np.asarray(FD[idx].T.toarray()), trans="T")
+            corr = np.asarray((C[:, Ncols].T @ Y).T)
+            FN = (FN - _place_rows(idx, corr, F.shape[0])).tocsr()
+    Ft = _drop_small(FN, drop)
+    dependent = _greedy_dependent_sparse(Ft, 1e-9 * scale)
+    return free, [fixed_names[k] for k in dependent]
 
 
 def _evaluate_variables(r, t0, x0, z0, u0, pv) -> dict[str, float]:

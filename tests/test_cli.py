@@ -108,6 +108,7 @@ def test_tour_short_run(tmp_path, capsys):
     none = by["pendulum", "none"]
     assert none.max_c > 1e-8  # the index-1 form drifts at rtol = atol = 1e-6
     assert by["pendulum", "Baumgarte"].max_c < none.max_c
+    assert by["pendulum", "GGL"].max_c < 1e-5 and by["delta robot", "GGL"].max_c < 1e-5
     for remedy in ("projection", "dummy derivatives", "RATTLE"):
         assert by["pendulum", remedy].max_c < 1e-9
         assert by["delta robot", remedy].max_c < 1e-9

@@ -115,3 +115,17 @@ def test_tour_short_run(tmp_path, capsys):
     assert (tmp_path / "pendulum3d_drift.png").exists()
     assert (tmp_path / "delta_robot_drift.png").exists()
     assert (tmp_path / "pendulum3d_structure.png").exists()
+
+
+def test_tour_ocp_section(tmp_path, capsys):
+    """The tour's optimal control part: the crane's minimum time and the periodic pendulum,
+    solved with the redundant periodicity conditions dropped, failing when all are imposed."""
+    from daekit.tour import _ocp_section
+
+    _ocp_section(tmp_path, progress=False)
+    out = capsys.readouterr().out
+    assert "success=True, minimum time T = 1.97" in out
+    assert "dropped as implied by the others and the invariants: initial p[2]" in out
+    assert "naive (all conditions imposed): success=False" in out
+    assert (tmp_path / "crane_ocp.png").exists()
+    assert (tmp_path / "pendulum3d_periodic_ocp.png").exists()

@@ -445,7 +445,7 @@ def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, refine: int = 4) -> np.ndarra
     )
     b = np.concatenate([b1, -hv])
     try:
-        lu = spla.splu(K_reg, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1)
+        lu = spla.splu(K_reg)  # COLAMD + partial pivoting: little fill on KKT matrices
     except RuntimeError:  # pragma: no cover - the regularized matrix is nonsingular
         return spla.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0]
     sol = lu.solve(b)
@@ -494,8 +494,9 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
 
 def _dependent_fixed(J, n_cons, fixed_names) -> list[str]:
     """Fixed values whose rows of ``J`` lie in the span of the consistency rows and of the
-    fixed rows before them: one QR of the stacked rows (no pivoting, so the order is kept);
-    ``|R_kk|`` is the distance of row ``k`` from the span of the rows before it."""
+    (independent) fixed rows before them: the consistency rows' span is projected out, then
+    Gram--Schmidt in the given order (:func:`_greedy_dependent_rows`) measures each row's
+    distance from the span of the rows accepted before it."""
     if not fixed_names:
         return []
     n = J.shape[1]
@@ -511,10 +512,8 @@ def _dependent_fixed(J, n_cons, fixed_names) -> list[str]:
     if rows.shape[0] == 0 or n == 0:
         return list(fixed_names)
     scale = max(1.0, np.abs(J).max())
-    r = scipy.linalg.qr(rows.T, mode="r")[0]
-    diag = np.abs(np.diag(r)) if r.shape[0] >= rows.shape[0] else np.r_[
-        np.abs(np.diag(r)), np.zeros(rows.shape[0] - r.shape[0])]
-    return [nm for k, nm in enumerate(fixed_names) if diag[k] <= 1e-9 * scale]
+    dependent = set(_greedy_dependent_rows(rows, 1e-9 * scale))
+    return [nm for k, nm in enumerate(fixed_names) if k in dependent]
 
 
 def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
@@ -570,39 +569,43 @@ def _greedy_dependent_sparse(F: sp.csr_matrix, tol: float) -> list[int]:
     """:func:`_greedy_dependent_rows` for a sparse ``F`` whose rows are mostly (multiples of)
     unit vectors, as fixed states give.
 
-    A row with one entry in a column that no row with several entries touches depends only on
-    earlier rows with that same single column; only the rows that touch the other rows'
-    columns go through dense Gram--Schmidt (on those columns only)."""
+    The accepted rows' span is kept as unit vectors ``e_j`` (``j`` in ``U``) plus an orthonormal
+    set ``Q`` with zeros on ``U``. A single-entry row in column ``j`` that no vector of ``Q``
+    touches is accepted into ``U`` (or is dependent when ``j`` is in ``U``) in O(1); any other
+    row loses its ``U`` entries, then Gram--Schmidt against ``Q`` (twice) decides. When the rows
+    of several entries all depend on the unit rows before them, as for over-specified chains,
+    ``Q`` stays empty and the whole pass is linear in the number of entries."""
     F = F.tocsr()
     F.sum_duplicates()
-    k = F.shape[0]
-    counts = np.diff(F.indptr)
-    multi = np.where(counts >= 2)[0]
-    touched = np.zeros(F.shape[1], dtype=bool)
-    if multi.size:
-        touched[np.unique(F[multi].indices)] = True
-    dense_rows: list[int] = []
+    k, ncol = F.shape
+    in_U = np.zeros(ncol, dtype=bool)
+    Q = np.zeros((0, ncol))
+    q_touch = np.zeros(ncol, dtype=bool)  # columns where some vector of Q is nonzero
     dependent: list[int] = []
-    seen: set[int] = set()
     for i in range(k):
         lo, hi = F.indptr[i], F.indptr[i + 1]
-        if hi == lo:
+        cols, vals = F.indices[lo:hi], F.data[lo:hi]
+        keep = ~in_U[cols]
+        cols, vals = cols[keep], vals[keep]
+        if cols.size == 0 or np.max(np.abs(vals)) <= tol and not q_touch[cols].any():
             dependent.append(i)
-        elif hi - lo == 1 and not touched[F.indices[lo]]:
-            j = int(F.indices[lo])
-            if abs(F.data[lo]) <= tol or j in seen:
-                dependent.append(i)
-            else:
-                seen.add(j)
+            continue
+        if cols.size == 1 and not q_touch[cols[0]]:
+            in_U[cols[0]] = True
+            continue
+        a = np.zeros(ncol)
+        a[cols] = vals
+        if Q.shape[0]:
+            a -= Q.T @ (Q @ a)
+            a -= Q.T @ (Q @ a)
+        a[in_U] = 0.0
+        nrm = float(np.linalg.norm(a))
+        if nrm <= tol:
+            dependent.append(i)
         else:
-            dense_rows.append(i)
-    if dense_rows:
-        cols = np.where(touched)[0]
-        sub = F[dense_rows][:, cols].toarray() if cols.size else np.zeros((len(dense_rows), 0))
-        # single-entry rows outside the touched columns (accepted above) are orthogonal to
-        # every row here, so they do not change the distances
-        dependent += [dense_rows[i] for i in _greedy_dependent_rows(sub, tol)]
-    return sorted(dependent)
+            Q = np.vstack([Q, a / nrm])
+            q_touch |= Q[-1] != 0.0
+    return dependent
 
 
 def _drop_small(A: sp.csr_matrix, tol: float) -> sp.csr_matrix:

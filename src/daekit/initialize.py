@@ -9,11 +9,30 @@ least-squares sense, and everything else is found.
 Method (Gauss--Newton with CasADi Jacobians): unknowns ``w = (x, z)``; constraints
 ``h(w) = [alg; invariants; fixed(w) - fixed values] = 0``; objective
 ``||G(w) - guess||^2``. Each iteration solves the linearized problem
-``min ||G + J_G d - guess||  s.t.  h + J_h d = 0`` through an SVD of ``J_h`` (minimum-norm
-particular step plus a least-squares step in the null space), so redundant but consistent
-constraints do no harm. Values that cannot be made consistent leave a residual; the rows
-carrying it (at a Gauss--Newton stationary point the residual lies in the left null space of
-``J_h``) name the conflicting fixed values and consistency conditions.
+``min ||G + J_G d - guess||  s.t.  h + J_h d = 0`` (minimum-norm particular step plus a
+least-squares step in the null space), so redundant but consistent constraints do no harm.
+Values that cannot be made consistent leave a residual; the rows carrying it (at a
+Gauss--Newton stationary point the residual lies in the left null space of ``J_h``) name the
+conflicting fixed values and consistency conditions.
+
+Two implementations of the same method, chosen by the number of unknowns ``nx + nz``:
+
+- small systems (below ``_SPARSE_MIN_UNKNOWNS = 300``): dense SVDs of ``J_h`` for the step,
+  an SVD projection plus in-order Gram--Schmidt for the redundant fixed values, a
+  column-pivoted QR for the free states;
+- big systems: CasADi's sparse Jacobians as SciPy CSC matrices; the step from the KKT system
+  ``[[W, J^T], [J, 0]]`` (``W = J_G^T J_G``, or ``I`` without guesses) factorized by SuperLU
+  after a tiny proximal regularization and polished by iterative refinement; ``z`` eliminated
+  by SuperLU on ``d alg / d z``; a minimum-weight bipartite matching picks a well-conditioned
+  square basis ``C_D`` of the consistency rows (the dependent states ``D``; the others are
+  free), and a fixed row is redundant when its coordinates on the free states
+  ``f_N - f_D C_D^{-1} C_N`` depend on those of the fixed rows before it. Everything is
+  linear in the size for mechanisms such as long chains (a 1000-link chain, 7000 unknowns,
+  in about a second). Degenerate consistency rows (numerically rank deficient at the
+  solution) fall back to the dense analysis for ``free`` and ``redundant``.
+
+Both give the same values, the same ``redundant`` values and messages; ``free`` is a valid
+choice of the same size on both (they may pick different, equally valid, sets).
 """
 
 from __future__ import annotations
@@ -54,7 +73,8 @@ class InitialValues:
         Every element of the original model (``"p[0]"``, ``"der(p)[0]"``, ``"z"``, inputs).
     free : set of str
         A set of state element names that could have been fixed freely (one choice of dynamic
-        degrees of freedom; found by a column-pivoted QR of the consistency Jacobian).
+        degrees of freedom; found by a column-pivoted QR of the consistency Jacobian, or for
+        big systems by a matched sparse basis of it). States you fixed are preferred.
     dof : int
         Number of dynamic degrees of freedom (``len(free)``).
     redundant : list of str
@@ -152,8 +172,9 @@ def initialize(
     tol : float
         Required max |residual| (scaled by ``1 + |values|``).
 
-    Method: Gauss--Newton with CasADi Jacobians and SVD-based minimum-norm steps (see the
-    module docstring); no IPOPT needed.
+    Method: Gauss--Newton with CasADi Jacobians and minimum-norm steps, dense SVDs for small
+    systems and sparse SuperLU factorizations from 300 unknowns on (see the module
+    docstring); no IPOPT needed.
 
     Example
     -------

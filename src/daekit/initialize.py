@@ -708,6 +708,10 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
 
     drop = 1e-14 * scale
     C = _drop_small(elim(Ji), drop)
+    # consistency rows that vanish once z is eliminated are implied by alg (e.g. invariants
+    # that repeat an algebraic equation): they constrain nothing more
+    cmax = np.asarray(abs(C).max(axis=1).toarray()).ravel() if C.shape[0] else np.zeros(0)
+    C = C[np.where(cmax > 1e-9 * scale)[0]]
     n_c = C.shape[0]
     fixed_set = set(fixed_names)
     if n_c:

@@ -155,3 +155,16 @@ def test_sigma_matrix_from_sparsity():
         [0, 0, -1, -1, -1],
     ])
     assert np.array_equal(sigma, expected)
+
+
+def test_non_models_and_lists():
+    with pytest.raises(dk.ModelError, match="analyze needs a daekit.Model, got int"):
+        dk.analyze(42)
+    with pytest.raises(dk.ModelError, match="reduce_index needs a daekit.Model, got str"):
+        dk.reduce_index("x")
+    m = dk.Model("list")
+    x = m.state("x", 2)
+    m.equation([m.der(x[0]) + x[0], m.der(x[1]) - x[0]], name="pair")
+    assert m.n_equations == 2
+    with pytest.raises(dk.ModelError, match="a list must hold CasADi SX expressions or numbers"):
+        m.equation([object()], name="bad")

@@ -547,3 +547,11 @@ def test_dummy_derivatives_big_chain_per_block(angle, dummy_coord):
     # monitoring uses the same per-block measure as the selection
     xs, zs = _values(r, {**vals})
     assert selection_condition(r, xs, zs) < 10 * r.state_selection["condition"]
+
+
+def test_baumgarte_rejects_unstable_poles():
+    import daekit as dk
+
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    with pytest.raises(dk.ReductionError, match=r"poles 1, 2 have real part >= 0"):
+        dk.baumgarte(r, poles=(1.0, 2.0))

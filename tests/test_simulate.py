@@ -259,3 +259,11 @@ def test_trajectory_access_and_figures(tmp_path, capsys):
             traj.to_pandas()
     else:
         assert traj.to_pandas().shape[0] == 11
+
+
+def test_bad_init_type_is_a_daekit_error():
+    import daekit as dk
+
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    with pytest.raises(dk.DaekitError, match="init must be InitialValues"):
+        dk.simulate(r, [0.0, 1.0], "hello")

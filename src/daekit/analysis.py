@@ -153,6 +153,7 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     >>> dk.is_index1(dk.examples.l3()).rank
     6
     """
+    Model.require(model, "is_index1")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns
@@ -227,6 +228,7 @@ def differential_index(
     >>> differential_index(dk.examples.gear_petzold()).index
     2
     """
+    Model.require(model, "differential_index")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns
@@ -409,6 +411,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     >>> a.index, a.dof, a.equation_offsets["rod"]
     (3, 4, 2)
     """
+    Model.require(model, "analyze")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns

@@ -253,6 +253,14 @@ class Model:
             raise ModelError(f"model {self.name!r}: {name!r} is not a valid equation name")
         if any(e.name == name for e in self.equations):
             raise ModelError(f"model {self.name!r}: the equation name {name!r} is used twice")
+        if isinstance(expr, (list, tuple)):
+            try:
+                expr = ca.vertcat(*[ca.vec(ca.SX(e)) for e in expr])
+            except Exception:  # noqa: BLE001 - turned into a daekit error below
+                raise ModelError(
+                    f"model {self.name!r}, equation {name!r}: a list must hold CasADi SX "
+                    "expressions or numbers"
+                ) from None
         if isinstance(expr, ca.MX):
             raise ModelError(
                 f"model {self.name!r}, equation {name!r}: MX expressions are not supported; "
@@ -260,10 +268,11 @@ class Model:
             )
         try:
             sx = ca.SX(expr) if not isinstance(expr, ca.SX) else expr
-        except Exception as exc:  # noqa: BLE001 - turned into a daekit error
+        except Exception:  # noqa: BLE001 - turned into a daekit error
             raise ModelError(
                 f"model {self.name!r}, equation {name!r}: cannot convert {type(expr).__name__} "
-                f"to a CasADi expression ({exc})"
+                "to a CasADi expression; give an SX expression built from the model's symbols, "
+                "a number, or a NumPy array"
             ) from None
         sx = ca.vec(ca.densify(sx))
         if sx.numel() == 0:
@@ -455,6 +464,16 @@ class Model:
         inc = Incidence(n, m, rows, cols, vals)
         self._cache["inc"] = inc
         return inc
+
+    @staticmethod
+    def require(obj, where: str) -> Model:
+        """``obj`` if it is a Model, else a :class:`ModelError` saying what ``where`` needs."""
+        if not isinstance(obj, Model):
+            raise ModelError(
+                f"{where} needs a daekit.Model, got {type(obj).__name__}"
+                + (" (call .model() on a LagrangianSystem)" if hasattr(obj, "index1") else "")
+            )
+        return obj
 
     def validate(self) -> None:
         """Check the model; raise :class:`ModelError` or :class:`StructuralError` naming the fault.

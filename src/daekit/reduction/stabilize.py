@@ -40,6 +40,15 @@ def _chain_coefficients(poles, m: int) -> np.ndarray:
     ps = list(np.atleast_1d(np.asarray(poles, dtype=complex)))
     if not ps:
         raise ReductionError("baumgarte: give at least one pole, e.g. poles=(-1.0, -1.0)")
+    if not all(np.isfinite(p) for p in ps):
+        raise ReductionError(f"baumgarte: the poles must be finite numbers, got {list(poles)}")
+    unstable = [f"{p.real:g}" if p.imag == 0 else f"{p:g}" for p in ps if p.real >= 0]
+    if unstable:
+        raise ReductionError(
+            f"baumgarte: the poles {', '.join(unstable)} have real part >= 0, so the constraint dynamics "
+            "c'' + a1 c' + a0 c = 0 would not decay (drift would grow); give poles with negative "
+            "real parts, e.g. poles=(-1.0, -1.0)"
+        )
     ps = (ps + [ps[-1]] * m)[:m]
     coef = np.poly(ps)  # [1, a_(m-1), ..., a_0]
     if np.max(np.abs(coef.imag)) > 1e-12 * max(1.0, np.max(np.abs(coef.real))):

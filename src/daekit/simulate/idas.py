@@ -382,7 +382,13 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
             z0 = np.array([init.values.get(n, 0.0) for n in r.z_names], dtype=float)
         z0 = system.solve_z(t0, x0, z0, u0, pv)
         return x0, z0
-    arr = np.asarray(init, dtype=float).ravel()
+    try:
+        arr = np.asarray(init, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(
+            f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an "
+            f"array of the {r.nx} states; got {type(init).__name__}"
+        ) from None
     if arr.size == r.nx:
         x0 = arr
         z0 = system.solve_z(t0, x0, np.zeros(r.nz), sig.value(t0), pv)

@@ -129,3 +129,24 @@ def test_tour_ocp_section(tmp_path, capsys):
     assert "naive (all conditions imposed): success=False" in out
     assert (tmp_path / "crane_ocp.png").exists()
     assert (tmp_path / "pendulum3d_periodic_ocp.png").exists()
+
+
+def test_simulate_with_input_expression_l2(tmp_path, capsys):
+    """Lecture L2 driven by u = sin t: x2 = u, x1 = u', z = u'' (input derivatives from the
+    expression)."""
+    out_json = tmp_path / "l2.json"
+    assert main(["simulate", "l2", "--t-end", "2", "--points", "5", "--input", "u=sin(t)",
+                 "--json", str(out_json), "--quiet", "--rtol", "1e-10", "--atol", "1e-10"]) == 0
+    data = json.loads(out_json.read_text())
+    t = np.array(data["t"])
+    assert np.allclose(data["values"]["x2"], np.sin(t), atol=1e-8)
+    assert np.allclose(data["values"]["x1"], np.cos(t), atol=1e-8)
+    assert np.allclose(data["values"]["z"], -np.sin(t), atol=1e-6)
+    assert main(["simulate", "l2", "--t-end", "1", "--input", "u=sin(", "--quiet"]) == 2
+    assert "cannot evaluate" in capsys.readouterr().err
+
+
+def test_analyze_plot(tmp_path, capsys):
+    png = tmp_path / "sigma.png"
+    assert main(["analyze", "pendulum3d", "--plot", str(png)]) == 0
+    assert png.stat().st_size > 5000

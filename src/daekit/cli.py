@@ -89,7 +89,35 @@ def _cmd_analyze(args) -> int:
         print(json.dumps(a.to_dict(), indent=2))
     else:
         print(a.explain())
+    if args.plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        a.plot_structure().savefig(args.plot, dpi=110)
+        print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+def _parse_inputs(specs: list[str] | None, r) -> dict | None:
+    """``["u=[0, 0, sin(t)]"]`` -> ``{"u": SX expression of r.t}`` (CasADi's math names)."""
+    import casadi as ca
+
+    if not specs:
+        return None
+    names = {k: getattr(ca, k) for k in ("sin", "cos", "tan", "exp", "log", "sqrt", "tanh",
+                                         "fabs", "fmin", "fmax", "pi", "atan2")}
+    names.update(t=r.t, abs=ca.fabs)
+    out = {}
+    for spec in specs:
+        key, eq, text = spec.partition("=")
+        if not eq or not key.strip():
+            raise ModelError(f"--input {spec!r}: write NAME=EXPRESSION, e.g. u='[0, 0, sin(t)]'")
+        try:
+            val = eval(text, {"__builtins__": {}}, names)  # noqa: S307 - the user's own command
+        except Exception as exc:  # noqa: BLE001 - reported as a daekit error
+            raise ModelError(f"--input {spec!r}: cannot evaluate {text!r} ({exc})") from None
+        out[key.strip()] = ca.vertcat(*val) if isinstance(val, (list, tuple)) else val
+    return out
 
 
 def _cmd_reduce(args) -> int:
@@ -109,10 +137,11 @@ def _cmd_simulate(args) -> int:
     r = _as_reduced(obj, args.method, args.stabilization)
     fixed = json.loads(args.fixed) if args.fixed else None
     guess = json.loads(args.guess) if args.guess else None
-    init = initialize(r, fixed=fixed, guess=guess)
+    inputs = _parse_inputs(args.input, r)
+    init = initialize(r, fixed=fixed, guess=guess, inputs=inputs)
     t = np.linspace(0.0, args.t_end, args.points)
-    traj = simulate(r, t, init, stabilization=args.stabilization, rtol=args.rtol, atol=args.atol,
-                    method=args.method, progress=not args.quiet)
+    traj = simulate(r, t, init, inputs=inputs, stabilization=args.stabilization, rtol=args.rtol,
+                    atol=args.atol, method=args.method, progress=not args.quiet)
     final = traj.at(float(t[-1]))
     maxinv = traj.max_invariant()
     print(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
@@ -161,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("analyze", help="index, offsets, DOF and a plain-language explanation")
     a.add_argument("target", help="FILE.py[:FUNCTION] or a built-in example name")
     a.add_argument("--json", action="store_true", help="print a JSON summary")
+    a.add_argument("--plot", metavar="OUT.png", help="save the Sigma matrix with offsets")
     a.set_defaults(func=_cmd_analyze)
 
     r = sub.add_parser("reduce", help="print the index-1 form, invariants, state selection")
@@ -177,6 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--method", default="idas", choices=["idas", "rattle"])
     s.add_argument("--fixed", help='JSON of fixed initial values, e.g. \'{"p[0]": 1.0}\'')
     s.add_argument("--guess", help="JSON of initial guesses")
+    s.add_argument("--input", action="append", metavar="NAME=EXPR",
+                   help="an input as an expression of t, e.g. u='[0, 0, sin(t)]' (repeatable; "
+                        "inputs not given are zero)")
     s.add_argument("--rtol", type=float, default=1e-8)
     s.add_argument("--atol", type=float, default=1e-8)
     s.add_argument("--json", metavar="OUT", help="write the trajectory as JSON")

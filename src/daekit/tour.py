@@ -37,6 +37,7 @@ class RemedyResult:
     wall_time: float
     steps: int
     trajectory: object = None
+    energy: object = None  # energy along the trajectory (array)
 
 
 def _save(fig, path: Path, dpi: int = 100) -> None:
@@ -142,7 +143,7 @@ def _remedies(system_name, model, lag, fixed, guess, t, energy, inputs, progress
         e0 = en[0] if e0 is None else e0
         rows.append(RemedyResult(system_name, label, _max_inv(tr, 0), _max_inv(tr, 1),
                                  float(np.max(np.abs(en - e0))), wall,
-                                 int(tr.stats.get("steps", 0)), tr))
+                                 int(tr.stats.get("steps", 0)), tr, en))
     return r, init, rows
 
 
@@ -162,10 +163,12 @@ def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8.5), sharex=True)
+    e0 = rows[0].energy[0]
     for row in rows:
         tr = row.trajectory
-        for ax, order in zip(axes, (0, 1)):
+        axes[2].semilogy(tr.t, np.maximum(np.abs(row.energy - e0), 1e-17), label=row.remedy, lw=1)
+        for ax, order in zip(axes[:2], (0, 1)):
             cols = _level_columns(tr, order)
             if not cols:
                 continue
@@ -173,12 +176,14 @@ def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
             ax.semilogy(tr.t, np.maximum(y, 1e-17), label=row.remedy, lw=1)
     axes[0].set_ylabel("max |c|  (position level)")
     axes[1].set_ylabel("max |c'|  (velocity level)")
-    axes[1].set_xlabel("t [s]")
+    axes[2].set_ylabel("|E - E(0)|  (energy)")
+    axes[2].set_xlabel("t [s]")
     axes[0].set_title(title)
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     for ax in axes:
         ax.grid(True, which="major", alpha=0.3)
         ax.set_ylim(1e-17, 1e0)
+    axes[2].set_ylim(1e-12, 1e0)
     fig.tight_layout()
     _save(fig, path, dpi=110)
 
@@ -222,7 +227,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     rows += prow
     _say("")
     _say(_table(prow))
-    _drift_figure(prow, f"3D pendulum, {t_end:g} s, rtol = atol = 1e-6: constraint drift",
+    _drift_figure(prow, f"3D pendulum, {t_end:g} s, rtol = atol = 1e-6: constraint drift and energy",
                   out / "pendulum3d_drift.png")
     _save(prow[0].trajectory.plot(["p"]), out / "pendulum3d_positions.png")
 
@@ -262,7 +267,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     if drow:
         _say("")
         _say(_table(drow))
-        _drift_figure(drow, f"Delta robot, {t_end:g} s, rtol = atol = 1e-6: constraint drift",
+        _drift_figure(drow, f"Delta robot, {t_end:g} s, rtol = atol = 1e-6: constraint drift and energy",
                       out / "delta_robot_drift.png")
 
     # ------------------------------------------------------------------ animations

@@ -27,7 +27,8 @@ import numpy as np
 
 from .errors import ModelError, StructuralError
 
-__all__ = ["Model", "Variable", "Equation", "parse_name", "element_name"]
+__all__ = ["Model", "Variable", "Equation", "parse_name", "element_name", "expand_name",
+           "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
@@ -64,6 +65,50 @@ def parse_name(text: str) -> tuple[str, int, int | None]:
         order, name = 0, mt.group("name")
     idx = mt.group("index")
     return name, order, (int(idx) if idx is not None else None)
+
+
+class NameNotFoundError(ModelError, KeyError):
+    """A name asked of a trajectory or of initial values is not among the known ones."""
+
+    def __str__(self) -> str:  # KeyError would otherwise quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
+    """The scalar element names meant by ``name`` among ``keys``.
+
+    ``"p"`` -> ``["p[0]", "p[1]", "p[2]"]``, ``"p[1]"`` -> ``["p[1]"]``, ``"der(p,1)"`` ->
+    the elements of ``"der(p)"``, and a scalar ``"z"`` -> ``["z"]``.
+
+    >>> expand_name("p", ["p[0]", "p[1]", "z"])
+    ['p[0]', 'p[1]']
+    """
+    if name in keys:
+        return [name]
+    try:
+        base, order, idx = parse_name(name)
+    except ModelError:
+        raise NameNotFoundError(
+            f"cannot read the name {name!r}: use 'p', 'p[0]', 'der(p)', 'der(p)[0]' or 'der(p,2)'"
+        ) from None
+    prefix = element_name(base, 1, 0, order)
+    if idx is not None:
+        cand = f"{prefix}[{idx}]"
+        if cand in keys:
+            return [cand]
+        if idx == 0 and prefix in keys:
+            return [prefix]
+    else:
+        if prefix in keys:
+            return [prefix]
+        out = []
+        while f"{prefix}[{len(out)}]" in keys:
+            out.append(f"{prefix}[{len(out)}]")
+        if out:
+            return out
+    known = sorted({k.rsplit("[", 1)[0] if k.endswith("]") else k for k in keys})
+    shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
+    raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
 
 
 @dataclass

@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ModelError, OCPError
-from ..model import element_name, parse_name
+from ..model import NameNotFoundError, element_name, expand_name, parse_name
 from ..reduced import ReducedDAE
 
 __all__ = ["Augmented", "augment"]
@@ -75,29 +75,13 @@ class Augmented:
         """Element names meant by ``name`` (``"p"`` -> ``["p[0]", "p[1]"]``); OCPError if none."""
         if not isinstance(name, str):
             raise OCPError(f"{what}: expected a variable name (a string), got {name!r}")
-        key = name.replace(" ", "")
-        if key in self.names:
-            return [key]
         try:
-            base, order, idx = parse_name(key)
-        except ModelError as exc:
-            raise OCPError(f"{what}: {exc}") from None
-        canon = element_name(base, 1, 0, order)
-        if idx is None:
-            out = []
-            while f"{canon}[{len(out)}]" in self.names:
-                out.append(f"{canon}[{len(out)}]")
-            if out:
-                return out
-        elif f"{canon}[{idx}]" in self.names:
-            return [f"{canon}[{idx}]"]
-        elif idx == 0 and canon in self.names:
-            return [canon]
-        bases = sorted({parse_name(n)[0] for n in self.names if _parsable(n)})
-        raise OCPError(
-            f"{what}: the model has no variable {name!r}. Known variables: {', '.join(bases)} "
-            "(elements as 'p[0]', derivatives as 'der(p)', 'der(p)[0]', 'der(p,2)')"
-        )
+            return expand_name(name.replace(" ", ""), self.names, "the model")
+        except NameNotFoundError as exc:
+            raise OCPError(
+                f"{what}: {exc} (elements as 'p[0]', derivatives as 'der(p)', 'der(p)[0]', "
+                "'der(p,2)')"
+            ) from None
 
     def expr_of(self, name: str, what: str = "name") -> ca.SX:
         """The column of expressions (in t, x, z, w, p) of the elements of ``name``."""
@@ -153,14 +137,6 @@ class Augmented:
         for v in (self.x, self.z, self.w, self.p):
             out.update(v[i].element_hash() for i in range(v.numel()))
         return out
-
-
-def _parsable(n: str) -> bool:
-    try:
-        parse_name(n)
-    except ModelError:
-        return False
-    return True
 
 
 def augment(r: ReducedDAE) -> Augmented:

@@ -21,53 +21,9 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from ..errors import ModelError
-from ..model import element_name, parse_name
+from ..model import NameNotFoundError, expand_name
 
 __all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
-
-
-class NameNotFoundError(ModelError, KeyError):
-    """A name asked of a trajectory or of initial values is not among the known ones."""
-
-    def __str__(self) -> str:  # KeyError would otherwise quote the message
-        return str(self.args[0]) if self.args else ""
-
-
-def expand_name(name: str, keys: Mapping | Iterable[str], what: str = "the solution") -> list[str]:
-    """The scalar element names meant by ``name`` among ``keys``.
-
-    ``"p"`` -> ``["p[0]", "p[1]", "p[2]"]``, ``"p[1]"`` -> ``["p[1]"]``, ``"der(p,1)"`` ->
-    the elements of ``"der(p)"``, and a scalar ``"z"`` -> ``["z"]``.
-
-    >>> expand_name("p", ["p[0]", "p[1]", "z"])
-    ['p[0]', 'p[1]']
-    """
-    if name in keys:
-        return [name]
-    try:
-        base, order, idx = parse_name(name)
-    except ModelError:
-        raise NameNotFoundError(
-            f"cannot read the name {name!r}: use 'p', 'p[0]', 'der(p)', 'der(p)[0]' or 'der(p,2)'"
-        ) from None
-    prefix = element_name(base, 1, 0, order)
-    if idx is not None:
-        cand = f"{prefix}[{idx}]"
-        if cand in keys:
-            return [cand]
-        if idx == 0 and prefix in keys:
-            return [prefix]
-    else:
-        if prefix in keys:
-            return [prefix]
-        out = []
-        while f"{prefix}[{len(out)}]" in keys:
-            out.append(f"{prefix}[{len(out)}]")
-        if out:
-            return out
-    known = sorted({_vector_name(k) for k in keys})
-    shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
-    raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
 
 
 def _vector_name(element: str) -> str:

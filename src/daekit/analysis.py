@@ -589,11 +589,13 @@ def _explain(a: Analysis) -> str:
                                                      for v in b[1])), None)
             eqs = ", ".join(dict.fromkeys(
                 _der_eq(x.split("[")[0], a.equation_offsets[x]) for x in block[0])) if block else ""
-            lines.append(
-                f"  - algebraic {nm}: determined as {_der(nm, dv)} together with {eqs}; "
-                + ("its derivative needs one more differentiation."
-                   if dv == 0 else "")
-            )
+            if dv == 0:
+                tail = "its derivative needs one more differentiation."
+            else:
+                tail = (f"its derivatives up to {_der(nm, dv)} are needed, so in the reduced "
+                        f"form {nm} becomes a state although the model never differentiates it.")
+            lines.append(f"  - algebraic {nm}: determined as {_der(nm, dv)} together with {eqs}; "
+                         + tail)
         if a.index == 0:
             lines.append("  It is an ODE (index 0).")
         elif any(v == 0 for v in d.values()):

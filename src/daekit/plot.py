@@ -183,7 +183,7 @@ def plot_structure(analysis, ax=None, max_size: int = 60):
     sec.set_yticks(range(n))
     sec.set_yticklabels([f"c={c[e]}" for e in eqs], fontsize=8)
     ax.set_title(f"Sigma matrix of {analysis.model_name!r}: index {analysis.index}, "
-                 f"DOF {analysis.dof} (boxed: transversal; shaded: system Jacobian)",
+                 f"DOF {analysis.dof}\n(boxed: transversal; shaded: system Jacobian)",
                  fontsize=10, pad=12)
     ax.set_aspect("equal")
     fig.tight_layout()

@@ -267,3 +267,52 @@ def test_bad_init_type_is_a_daekit_error():
     r = dk.reduce_index(dk.examples.pendulum3d())
     with pytest.raises(dk.DaekitError, match="init must be InitialValues"):
         dk.simulate(r, [0.0, 1.0], "hello")
+
+
+def test_integrator_cache_distinguishes_inputs_that_print_alike():
+    """Constants differing in the 7th digit print alike; each must get its own integrator."""
+    import daekit as dk
+
+    m = dk.Model("drive")
+    x = m.state("x")
+    u = m.control("u")
+    m.equation(m.der(x) - u, name="d")
+    r = dk.reduce_index(m)
+    init = dk.initialize(r, fixed={"x": 0.0})
+    for a in (1.2345671, 1.2345674):
+        tr = dk.simulate(r, np.linspace(0, 10, 3), init, inputs={"u": a + 0 * r.t})
+        assert tr["x"][-1] == pytest.approx(10 * a, rel=1e-12)
+
+
+def test_progress_does_not_change_the_result(capsys):
+    """Case B at 1e-10 with the progress bar: still one IDAS run, still within 1e-7."""
+    import daekit as dk
+    from daekit.examples import exact
+
+    r = dk.reduce_index(dk.examples.pendulum_planar())
+    init = dk.initialize(r, fixed={"x": 1.0, "der(x)": 0.0}, guess={"y": 0.0, "der(y)": 0.0})
+    t = np.linspace(0, 10, 1001)
+    tr = dk.simulate(r, t, init, rtol=1e-10, atol=1e-10, progress=True)
+    ref = exact.pendulum_planar(np.array([10.0]), np.pi / 2, g=9.81, L=1.0)
+    assert abs(tr["x"][-1] - float(np.ravel(ref["x"])[0])) < 1e-7
+    assert "100%" in capsys.readouterr().err
+
+
+def test_systems_without_states_gear_petzold_and_l2_dummy():
+    """F1 (reduced: no states) and L2 by dummy derivatives: solved at each output time."""
+    import casadi as ca
+
+    import daekit as dk
+
+    t = np.linspace(0, 2, 9)
+    r = dk.reduce_index(dk.examples.gear_petzold())
+    assert r.nx == 0
+    tr = dk.simulate(r, t, dk.initialize(r))
+    assert np.allclose(tr["y"], np.sin(t), atol=1e-12)  # y = sin t, z = 0
+    assert np.allclose(tr["z"], 0.0, atol=1e-12)
+    rd = dk.reduce_index(dk.examples.l2(), method="dummy_derivatives")
+    assert rd.nx == 0
+    u = {"u": ca.sin(rd.t)}
+    tr = dk.simulate(rd, t, dk.initialize(rd, inputs=u), inputs=u)
+    assert np.allclose(tr["x1"], np.cos(t), atol=1e-10)  # x1 = u'
+    assert np.allclose(tr["z"], -np.sin(t), atol=1e-10)  # z = u''

@@ -183,8 +183,11 @@ def _cached_system(r, sig: InputSignal, rtol: float, atol: float, options: Mappi
     if sig.has_callables:
         return _System(r, sig, rtol, atol, options)
     try:
-        key = (_fingerprint(r), str(sig.expr), float(rtol), float(atol),
-               repr(sorted(options.items())))
+        # the input expression by its serialized function, not its printed form: printing
+        # rounds constants to ~6 digits, and two different inputs must not share an integrator
+        u_key = ca.Function("u_key", [r.t], [sig.expr]).serialize() if sig.expr is not None \
+            else None
+        key = (_fingerprint(r), u_key, float(rtol), float(atol), repr(sorted(options.items())))
     except Exception:  # noqa: BLE001 - unprintable option: no caching
         return _System(r, sig, rtol, atol, options)
     hit = _CACHE.get(key)
@@ -444,7 +447,8 @@ def simulate(
     method : "idas" or "rattle"
         ``"rattle"`` dispatches to :func:`daekit.simulate.rattle.simulate_rattle`.
     progress : bool
-        A progress bar on stderr (integrates interval by interval).
+        A progress bar on stderr (without stabilization the whole grid is one IDAS run, so the
+        bar shows its start and end; projection and dummy derivatives advance it per step).
     poles : pair of float
         Baumgarte poles.
     **options
@@ -518,17 +522,28 @@ def simulate(
     if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z0))):
         raise InputError("simulate: the initial values contain NaN or infinity")
 
-    if stabilization == "dummy_derivatives":
+    if r_int.nx == 0:
+        # nothing to integrate (e.g. Gear-Petzold, or L2 by dummy derivatives): the solution
+        # is alg(t, z, u(t)) = 0 at each output time, solved by Newton from the previous point
+        traj = _run_algebraic(r_int, system, tg, z0, U, pv)
+    elif stabilization == "dummy_derivatives":
         from .dummy import simulate_dummy
 
         traj = simulate_dummy(r_int, tg, x0, z0, inputs, params, sig, pv, system, progress,
                               rtol, atol, options)
-    elif stabilization == "projection" or progress:
-        proj = Projector(r_int) if stabilization == "projection" else None
-        traj = _run_intervals(r_int, system, tg, x0, z0, U, pv, proj, progress,
-                              label=stabilization or "simulate")
+    elif stabilization == "projection":
+        traj = _run_intervals(r_int, system, tg, x0, z0, U, pv, Projector(r_int), progress,
+                              label="projection")
     else:
-        traj = _run_grid(r_int, system, tg, x0, z0, U, pv)
+        # one IDAS run over the whole grid, also with progress=True: restarting at every output
+        # point would change the method (BDF order back to 1) and the result
+        bar = _Progress(progress, tg[0], tg[-1], "simulate")
+        bar.update(tg[0])
+        try:
+            traj = _run_grid(r_int, system, tg, x0, z0, U, pv)
+        finally:
+            bar.update(tg[-1])
+            bar.close()
     traj.stats["wall_time"] = time.perf_counter() - wall0
     traj.stats["stabilization"] = stabilization
     return traj
@@ -586,6 +601,33 @@ def _run_grid(r, system: _System, tg, x0, z0, U, pv) -> Trajectory:
     # locate the failure: interval by interval (only on failure)
     return _run_intervals(r, system, tg, x0, z0, U, pv, None, False, label="simulate",
                           first_error=first_error)
+
+
+def _run_algebraic(r, system: _System, tg, z0, U, pv) -> Trajectory:
+    """A system without differential states: Newton on ``alg = 0`` at every output time."""
+    w0 = time.perf_counter()
+    n = tg.size
+    X = np.zeros((n, 0))
+    Z = np.empty((n, r.nz))
+    Z[0] = z0
+    x = np.zeros(0)
+    for k in range(1, n):
+        Z[k] = system.solve_z(tg[k], x, Z[k - 1], U[k], pv)
+        g = np.asarray(system.alg_fun(tg[k], x, Z[k], U[k], pv)[0], dtype=float).ravel()
+        if not np.all(np.isfinite(g)) or np.max(np.abs(g), initial=0.0) > 1e-8 * (
+            1 + np.max(np.abs(Z[k]), initial=0.0)
+        ):
+            partial = _make_trajectory(r, tg[:k], X[:k], Z[:k], U[:k], pv, {})
+            raise SimulationError(
+                f"simulate: no state to integrate, and Newton on the algebraic equations failed "
+                f"at t = {tg[k]:g} (residual {np.max(np.abs(g)):.3g}); the trajectory up to "
+                f"t = {tg[k - 1]:g} is attached as .trajectory.",
+                t=float(tg[k]),
+                trajectory=partial,
+            )
+    stats = {"steps": 0, "newton_solves": n - 1, "integrator_wall_time": time.perf_counter() - w0,
+             "note": "no differential states: algebraic equations solved at each output time"}
+    return _make_trajectory(r, tg, X, Z, U, pv, stats, system.evaluator)
 
 
 def _reraise_input_error(system: _System) -> None:

@@ -316,3 +316,19 @@ def test_systems_without_states_gear_petzold_and_l2_dummy():
     tr = dk.simulate(rd, t, dk.initialize(rd, inputs=u), inputs=u)
     assert np.allclose(tr["x1"], np.cos(t), atol=1e-10)  # x1 = u'
     assert np.allclose(tr["z"], -np.sin(t), atol=1e-10)  # z = u''
+
+
+def test_initial_values_for_another_start_or_parameters_are_refused():
+    import casadi as ca
+
+    import daekit as dk
+
+    r = dk.reduce_index(dk.examples.l2())
+    u = {"u": ca.sin(r.t)}
+    init = dk.initialize(r, inputs=u)  # at t0 = 0: x2 = sin 0
+    with pytest.raises(dk.DaekitError, match=r"computed at t0 = 0 while the grid starts at t = 1"):
+        dk.simulate(r, np.linspace(1, 3, 5), init, inputs=u)
+    rp = dk.reduce_index(dk.examples.pendulum3d())
+    init = dk.initialize(rp, fixed={"p": [0.6, 0, -0.8], "v": [0, 1, 0]})
+    with pytest.raises(dk.DaekitError, match=r"other parameter values.*'rod'"):
+        dk.simulate(rp, np.linspace(0, 1, 5), init, params={"L": 2.0})

@@ -368,6 +368,9 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
     if isinstance(init, Mapping):
         init = initialize(r, t0, guess=init, inputs=inputs, params=params)
     if isinstance(init, InitialValues):
+        ip = np.asarray(init.p, dtype=float).ravel()
+        other_t0 = abs(float(init.t0) - t0) > 1e-12 * max(1.0, abs(t0))
+        other_p = ip.size == np.size(pv) and not np.allclose(ip, pv, rtol=1e-12, atol=0.0)
         u0 = sig.value(t0)
         if list(init.x_names) == list(r.x_names):
             x0 = np.asarray(init.x0, dtype=float)
@@ -384,6 +387,20 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
         else:
             z0 = np.array([init.values.get(n, 0.0) for n in r.z_names], dtype=float)
         z0 = system.solve_z(t0, x0, z0, u0, pv)
+        if (other_t0 or other_p) and r.invariants.numel():
+            # made for another start time or other parameters: fine if still consistent
+            inv = np.asarray(ca.Function("inv0", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(
+                t0, x0, z0, u0, pv), dtype=float).ravel()
+            scale = 1.0 + np.max(np.abs(x0), initial=0.0)
+            bad = [r.invariant_names[i] for i in np.nonzero(np.abs(inv) > 1e-8 * scale)[0]]
+            if bad:
+                why = (f"at t0 = {init.t0:g} while the grid starts at t = {t0:g}" if other_t0
+                       else "with other parameter values")
+                raise InputError(
+                    f"simulate: the initial values were computed {why}, and at the grid's start "
+                    f"they violate the consistency conditions {bad[:5]}; call dk.initialize with "
+                    "the same t0 and params as dk.simulate"
+                )
         return x0, z0
     try:
         arr = np.asarray(init, dtype=float).ravel()

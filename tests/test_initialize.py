@@ -274,3 +274,24 @@ def test_greedy_dependence_skips_dependent_rows():
     sparse = INIT._greedy_dependent_sparse(sp.csr_matrix(A), 1e-9)
     assert dense == sparse
     assert len(A) - len(dense) == 8 and {3, 4} <= set(dense)
+
+
+def test_no_guesses_at_all_still_finds_a_consistent_point():
+    """Nothing given: the default start p = 0 is a singular point of the rod constraint; a
+    second start from a generic point must find a consistent state."""
+    import daekit as dk
+
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    init = dk.initialize(r)
+    p, v = init["p"], init["v"]
+    assert abs(p @ p - 1.0) < 1e-12 and abs(p @ v) < 1e-12
+
+
+def test_bad_fixed_and_guess_types():
+    import daekit as dk
+
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    with pytest.raises(dk.InitializationError, match="fixed must be a dict"):
+        dk.initialize(r, fixed=[1, 2])
+    with pytest.raises(dk.InitializationError, match="must be a number or a list of numbers"):
+        dk.initialize(r, fixed={"p": "abc"})

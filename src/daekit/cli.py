@@ -230,6 +230,9 @@ def main(argv: list[str] | None = None) -> int:
     except json.JSONDecodeError as exc:
         print(f"daekit: error: --fixed/--guess is not valid JSON ({exc})", file=sys.stderr)
         return 2
+    except OSError as exc:  # a figure or JSON file that cannot be written
+        print(f"daekit: error: {exc.strerror or exc}: {exc.filename or ''}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -124,7 +124,12 @@ def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
         elems = expand_name(key, r.variables, "the model")
     except NameNotFoundError as exc:
         raise InitializationError(f"{what}: {exc}") from None
-    arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
+    try:
+        arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
+    except (TypeError, ValueError):
+        raise InitializationError(
+            f"{what}: the value of {key!r} must be a number or a list of numbers, got {val!r}"
+        ) from None
     if arr.size == 1 and len(elems) > 1:
         arr = np.repeat(arr, len(elems))
     if arr.size != len(elems):
@@ -214,6 +219,12 @@ def initialize(
         )[0]
 
     fixed_items: list[tuple[str, ca.SX, float]] = []
+    for what, given in (("fixed", fixed), ("guess", guess)):
+        if given is not None and not isinstance(given, Mapping):
+            raise InitializationError(
+                f"{what} must be a dict of names and values, e.g. {{'p[0]': 1.0}}, "
+                f"got {type(given).__name__}"
+            )
     for k, v in (fixed or {}).items():
         fixed_items += _name_values(r, k, v, "fixed")
     guess_items: list[tuple[str, ca.SX, float]] = []
@@ -288,45 +299,64 @@ def initialize(
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
 
-    wv = w0.copy()
-    it = 0
-    hv, J = hval(wv)
     scale = 1.0 + np.abs(np.concatenate([fix_val, gval, [0.0]])).max()
-    converged = False
-    history: list[float] = []
-    for it in range(1, max_iter + 1):  # noqa: B007
-        if not np.all(np.isfinite(hv)) or not jac_finite(J):
-            bad = [row_names[i] for i in np.where(~np.isfinite(hv))[0]][:5]
-            raise InitializationError(
-                f"initialize: the equations {bad or '(Jacobian)'} are not finite at the current "
-                "point; give guesses closer to a consistent state"
-            )
-        if use_sparse:
-            d = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval)
-        else:
-            d = _gn_step(hv, J, gfun, wv, gval)
-        normh = np.linalg.norm(hv)
-        alpha = 1.0
-        for _ in range(30):
-            wn = wv + alpha * d
-            hn, Jn = hval(wn)
-            if np.all(np.isfinite(hn)) and (
-                np.linalg.norm(hn) <= max(normh * (1 - 1e-4 * alpha), tol * scale) or alpha < 1e-3
+
+    def gauss_newton(wv):
+        """Damped Gauss-Newton from ``wv``: (point, residual, Jacobian, converged, iterations)."""
+        it = 0
+        hv, J = hval(wv)
+        history: list[float] = []
+        for it in range(1, max_iter + 1):  # noqa: B007
+            if not np.all(np.isfinite(hv)) or not jac_finite(J):
+                bad = [row_names[i] for i in np.where(~np.isfinite(hv))[0]][:5]
+                raise InitializationError(
+                    f"initialize: the equations {bad or '(Jacobian)'} are not finite at the "
+                    "current point; give guesses closer to a consistent state"
+                )
+            if use_sparse:
+                d = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval)
+            else:
+                d = _gn_step(hv, J, gfun, wv, gval)
+            normh = np.linalg.norm(hv)
+            alpha = 1.0
+            for _ in range(30):
+                wn = wv + alpha * d
+                hn, Jn = hval(wn)
+                if np.all(np.isfinite(hn)) and (
+                    np.linalg.norm(hn) <= max(normh * (1 - 1e-4 * alpha), tol * scale)
+                    or alpha < 1e-3
+                ):
+                    break
+                alpha *= 0.5
+            step = np.max(np.abs(wn - wv)) if n else 0.0
+            if not np.all(np.isfinite(hn)) or np.linalg.norm(hn) > 1e3 * max(normh, 1.0):
+                break  # diverging: analyse the best point reached
+            wv, hv, J = wn, hn, Jn
+            if np.max(np.abs(hv), initial=0.0) <= tol * scale and step <= 1e-9 * (
+                1 + np.max(np.abs(wv), initial=0.0)
             ):
-                break
-            alpha *= 0.5
-        step = np.max(np.abs(wn - wv)) if n else 0.0
-        if not np.all(np.isfinite(hn)) or np.linalg.norm(hn) > 1e3 * max(normh, 1.0):
-            break  # diverging: analyse the best point reached
-        wv, hv, J = wn, hn, Jn
-        if np.max(np.abs(hv), initial=0.0) <= tol * scale and step <= 1e-9 * (
-            1 + np.max(np.abs(wv), initial=0.0)
-        ):
-            converged = True
-            break
-        history.append(float(np.linalg.norm(hv)))
-        if len(history) > 10 and history[-1] > 0.999 * history[-10] and history[-1] > 1e-6:
-            break  # stagnating far from zero: inconsistent
+                return wv, hv, J, True, it
+            history.append(float(np.linalg.norm(hv)))
+            if len(history) > 10 and history[-1] > 0.999 * history[-10] and history[-1] > 1e-6:
+                break  # stagnating far from zero: inconsistent
+        return wv, hv, J, False, it
+
+    wv, hv, J, converged, it = gauss_newton(w0.copy())
+    given = np.zeros(n, dtype=bool)
+    for nm, _, _ in guess_items + fixed_items:
+        if nm in direct:
+            given[direct[nm]] = True
+    if (not converged and float(np.max(np.abs(hv), initial=0.0)) > 1e-8 * scale
+            and not given.all()):
+        # The default start (0 for values nobody gave) can be a singular point of the
+        # constraints (p = 0 for a rod): try once from a generic point before giving up.
+        rng = np.random.default_rng(0)
+        w1 = w0.copy()
+        w1[~given] += rng.uniform(0.1, 0.3, int((~given).sum()))
+        w1 = _newton_z(hfun, w1, nx, n_alg, J_pattern if use_sparse else None)
+        second = gauss_newton(w1)
+        if second[3]:
+            wv, hv, J, converged, it = second
     res = float(np.max(np.abs(hv), initial=0.0))
     if not converged and res > 1e-8 * scale:
         _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it)

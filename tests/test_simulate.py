@@ -332,3 +332,21 @@ def test_initial_values_for_another_start_or_parameters_are_refused():
     init = dk.initialize(rp, fixed={"p": [0.6, 0, -0.8], "v": [0, 1, 0]})
     with pytest.raises(dk.DaekitError, match=r"other parameter values.*'rod'"):
         dk.simulate(rp, np.linspace(0, 1, 5), init, params={"L": 2.0})
+
+
+def test_failure_time_is_where_idas_stopped_not_the_interval_start():
+    """z^2 + x^2 = 1 with x = t loses its solution at t = 1: on the coarse grid [0, 2] the
+    error must say t = 1 (read from SUNDIALS' own report), not t = 0."""
+    import daekit as dk
+
+    m = dk.Model("fold")
+    x = m.state("x")
+    z = m.algebraic("z")
+    m.equation(m.der(x) - 1, name="clock")
+    m.equation(z**2 + x**2 - 1, name="circle")
+    r = dk.reduce_index(m)
+    init = dk.initialize(r, fixed={"x": 0.0}, guess={"z": 1.0})
+    with pytest.raises(dk.SimulationError) as err:
+        dk.simulate(r, [0.0, 2.0], init)
+    assert err.value.t == pytest.approx(1.0, abs=1e-3)
+    assert err.value.trajectory.t[-1] == 0.0

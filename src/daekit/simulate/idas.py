@@ -19,6 +19,7 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
+from .._cio import c_output, failure_time
 from ..errors import SimulationError
 from .inputs import InputError, InputSignal, resolve_params
 from .projection import Projector
@@ -596,8 +597,10 @@ def _run_grid(r, system: _System, tg, x0, z0, U, pv) -> Trajectory:
         X[0], Z[0] = x0, z0
         try:
             if not system.use_mx:
-                res = _fast_call(F, {"x0": x0, "z0": z0, "p": pv},
-                                 {"xf": (n - 1, r.nx), "zf": (n - 1, r.nz)}, want_stats=True)
+                with c_output():  # SUNDIALS' messages; a failure is retried interval-wise
+                    res = _fast_call(F, {"x0": x0, "z0": z0, "p": pv},
+                                     {"xf": (n - 1, r.nx), "zf": (n - 1, r.nz)},
+                                     want_stats=True)
                 raw_stats = res["_stats"]
                 X[1:], Z[1:] = res["xf"], res["zf"]
             else:
@@ -647,6 +650,14 @@ def _run_algebraic(r, system: _System, tg, z0, U, pv) -> Trajectory:
     return _make_trajectory(r, tg, X, Z, U, pv, stats, system.evaluator)
 
 
+def _check_inputs_at(system: _System, t: float) -> None:
+    """Raise the InputError naming an input that is NaN or infinite at ``t`` (a failure inside an
+    output interval is often an input's fault, e.g. sqrt of a negative number)."""
+    if system.sig.has_callables:
+        return
+    system.sig.value(t)
+
+
 def _reraise_input_error(system: _System) -> None:
     cb = getattr(system.ufun, "_daekit_cb", None) if system.ufun is not None else None
     if cb is not None and cb.error is not None:
@@ -672,17 +683,16 @@ def _run_intervals(r, system: _System, tg, x0, z0, U, pv, proj, progress, label=
         for k in range(n - 1):
             h = tg[k + 1] - tg[k]
             try:
-                res = F(x0=X[k], z0=Z[k], p=np.concatenate([pv, [tg[k], h]]))
+                with c_output() as said:
+                    res = F(x0=X[k], z0=Z[k], p=np.concatenate([pv, [tg[k], h]]))
             except RuntimeError as exc:
                 _reraise_input_error(system)
-                st = {}
-                try:
-                    st = F.stats()
-                except Exception:  # noqa: BLE001
-                    pass
-                tfail = tg[k] + h * float(st.get("tcur", 0.0) or 0.0)
+                # this integrator runs in scaled time tau in [0, 1]: t = t_k + h tau
+                tau = failure_time(said.text)
+                tfail = tg[k] + h * tau if tau is not None else tg[k]
                 if not math.isfinite(tfail) or tfail < tg[k]:
                     tfail = tg[k]
+                _check_inputs_at(system, tfail)
                 partial = _make_trajectory(r, tg[: k + 1], X[: k + 1], Z[: k + 1], U[: k + 1],
                                            pv, stats)
                 raise SimulationError(

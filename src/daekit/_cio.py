@@ -1,0 +1,74 @@
+"""Output written by C code (SUNDIALS, IPOPT, CasADi) to file descriptors 1 and 2.
+
+SUNDIALS reports the time of a failure only on stderr ("At t = 0.99 and h = 1e-17, ..."),
+and CasADi's integrator statistics are reset when a call fails. :func:`c_output` redirects
+both descriptors to a temporary file while a block runs and hands the text back, so that a
+caller can stay silent and still read what was said.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import sys
+import tempfile
+
+__all__ = ["c_output", "failure_time"]
+
+_AT_T = re.compile(r"At t\s*=\s*([-+0-9.eE]+)")
+
+
+class _Captured:
+    text = ""
+
+
+@contextlib.contextmanager
+def c_output(enabled: bool = True):
+    """Capture what C code writes to stdout and stderr inside the block (``.text`` after it).
+
+    ``enabled=False`` lets everything through (``.text`` stays empty).
+    """
+    out = _Captured()
+    if not enabled:
+        yield out
+        return
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:  # pragma: no cover - no file descriptors (embedded interpreters)
+        yield out
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    tmp = tempfile.TemporaryFile()
+    try:
+        os.dup2(tmp.fileno(), 1)
+        os.dup2(tmp.fileno(), 2)
+        yield out
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved:
+            os.close(fd)
+        tmp.seek(0)
+        out.text = tmp.read().decode(errors="replace")
+        tmp.close()
+
+
+def failure_time(text: str) -> float | None:
+    """The last time SUNDIALS reported (``At t = ...``) in captured output, or None.
+
+    >>> failure_time("[IDAS ERROR]  IDASolve\\n  At t = 0.999 and h = 1e-17, the corrector failed")
+    0.999
+    """
+    hits = _AT_T.findall(text or "")
+    if not hits:
+        return None
+    try:
+        return float(hits[-1].rstrip("."))
+    except ValueError:
+        return None

@@ -9,6 +9,7 @@ caller can stay silent and still read what was said.
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import sys
@@ -42,11 +43,17 @@ def c_output(enabled: bool = True):
         with contextlib.suppress(Exception):
             stream.flush()
     tmp = tempfile.TemporaryFile()
+    # CasADi's Python module routes its own messages through sys.stdout/sys.stderr, plain C
+    # code writes to the descriptors: catch both
+    py_out, py_err = sys.stdout, sys.stderr
+    buf = io.StringIO()
     try:
         os.dup2(tmp.fileno(), 1)
         os.dup2(tmp.fileno(), 2)
+        sys.stdout = sys.stderr = buf
         yield out
     finally:
+        sys.stdout, sys.stderr = py_out, py_err
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
@@ -55,7 +62,7 @@ def c_output(enabled: bool = True):
         for fd in saved:
             os.close(fd)
         tmp.seek(0)
-        out.text = tmp.read().decode(errors="replace")
+        out.text = tmp.read().decode(errors="replace") + buf.getvalue()
         tmp.close()
 
 

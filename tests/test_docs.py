@@ -4,6 +4,7 @@ import re
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 import pytest
 
 matplotlib.use("Agg")
@@ -14,8 +15,7 @@ def python_blocks(path: Path) -> str:
     return "\n".join(re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S))
 
 
-@pytest.mark.parametrize("doc", ["README.md", "docs/guide.md"])
-def test_code_blocks_run(doc):
+def run(doc: str) -> dict:
     code = python_blocks(ROOT / doc)
     assert code.strip(), f"{doc} has no python blocks"
     namespace: dict = {}
@@ -23,3 +23,25 @@ def test_code_blocks_run(doc):
     import matplotlib.pyplot as plt
 
     plt.close("all")
+    return namespace
+
+
+def test_readme_runs_and_says_true_things():
+    ns = run("README.md")
+    assert (ns["a"].index, ns["a"].dof) == (3, 4)  # "a.index == 3, a.dof == 4"
+    r = ns["r"]
+    assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]  # x = (p, v)
+    assert r.invariant_names == ["rod", "d/dt rod"]
+    p = ns["traj"]["p"]
+    assert np.max(np.abs(np.sum(p * p, axis=1) - 1.0)) < 1e-9  # projection: on the rod
+
+
+def test_guide_runs_and_says_true_things():
+    ns = run("docs/guide.md")
+    a = ns["a"]
+    assert (a.index, a.dof, a.structurally_ok) == (3, 4, True)
+    assert a.equation_offsets["rod"] == 2
+    assert ns["init"]["p"][0] == 0.6
+    sol = ns["sol"]
+    assert sol.success and sol.objective == pytest.approx(15.4575, abs=1e-3)
+    assert sol["p"].shape == (91, 3)

@@ -307,3 +307,14 @@ def test_newton_iterations_raised_when_needed():
                          {"x": 1.0, "y": 0.0}, dt=0.1, newton_iter=1)
     assert tr.stats["max_c"] < 1e-10 and tr.stats["max_cdot"] < 1e-10
     assert tr.stats["newton_iterations"] > tr.stats["steps"]
+
+
+def test_rattle_refuses_options_it_would_ignore():
+    import daekit as dk
+
+    r = dk.examples.lagrangian_pendulum3d().index1()
+    init = dk.initialize(r, fixed={"p": [0.6, 0, -0.8], "der(p)": [0, 1, 0]})
+    with pytest.raises(dk.DaekitError, match="takes no stabilization"):
+        dk.simulate(r, [0, 1], init, method="rattle", stabilization="projection")
+    with pytest.raises(dk.DaekitError, match="unknown option"):
+        dk.simulate(r, [0, 1], init, method="rattle", max_num_steps=10)

@@ -497,6 +497,11 @@ def simulate(
     if method == "rattle":
         from .rattle import simulate_rattle
 
+        if stabilization is not None:
+            raise InputError(
+                f"simulate: method='rattle' keeps the constraints by construction and takes no "
+                f"stabilization (got {stabilization!r}); drop stabilization= or use method='idas'"
+            )
         return simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,

@@ -767,7 +767,9 @@ def simulate_rattle(
     tol: float = 1e-10,
     init_tol: float = 1e-6,
     progress: bool = False,
-    **ignored: Any,
+    rtol: float | None = None,
+    atol: float | None = None,
+    **unknown: Any,
 ) -> Any:
     """Simulate a constrained mechanical system with RATTLE on the output grid ``t``.
 
@@ -810,6 +812,13 @@ def simulate_rattle(
         step, not only the output times), ``energy`` (at the output times) and
         ``energy_error_max``.
     """
+    if unknown:
+        raise ModelError(
+            f"simulate(method='rattle'): unknown option(s) {sorted(unknown)}; RATTLE takes dt, "
+            "params, inputs, newton_iter, max_newton_iter, tol, init_tol, progress (rtol and "
+            "atol do not apply: the step size dt sets the accuracy)"
+        )
+    del rtol, atol  # passed by dk.simulate for every method; RATTLE's accuracy is set by dt
     wall0 = time.perf_counter()
     sysm = as_constrained_mechanics(system, params)
     tt = np.asarray(t, float).ravel()

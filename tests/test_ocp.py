@@ -605,3 +605,138 @@ def test_failed_guess_simulation_falls_back_to_a_consistent_final_point(monkeypa
     sol = ocp.solve()
     assert sol.success and "straight line" in sol.report
     assert sol.objective == pytest.approx(15.4575249, rel=1e-6)  # angle_reference(), measured
+
+
+# ---------------------------------------------------------------------------- integral objective
+def _double_integrator():
+    m = dk.Model("cart")
+    s = m.state("s")
+    u = m.control("u")
+    m.equation(m.der(s, 2) - u, name="newton")
+    return m, s, u
+
+
+def _exact_tracking(T=2.0, N=40, rho=1e-3, npts=12):
+    """Exact discrete optimum of min int (s - sin 3t)^2 + rho u^2 dt, s'' = u, s(0) = s'(0) = 0,
+    over piecewise constant u on N intervals: s is linear in the controls (quadratic in t on
+    each interval), so this is a linear least-squares problem; the integral by Gauss-Legendre
+    with npts points per interval (exact for the polynomial part, 1e-16 for the sine)."""
+    h = T / N
+    xg, wg = np.polynomial.legendre.leggauss(npts)
+    tau, w = 0.5 * h * (xg + 1), 0.5 * h * wg
+    rows, rhs = [], []
+    Sk, Vk = np.zeros(N), np.zeros(N)  # s and s' at the interval's start, linear in u
+    for k in range(N):
+        ek = np.eye(N)[k]
+        for tj, wj in zip(tau, w, strict=True):
+            rows.append(np.sqrt(wj) * (Sk + Vk * tj + ek * tj**2 / 2))
+            rhs.append(np.sqrt(wj) * np.sin(3 * (k * h + tj)))
+        rows.append(np.sqrt(rho * h) * ek)
+        rhs.append(0.0)
+        Sk, Vk = Sk + Vk * h + ek * h**2 / 2, Vk + ek * h
+    A, b = np.array(rows), np.array(rhs)
+    u = np.linalg.lstsq(A, b, rcond=None)[0]
+    return float(np.sum((A @ u - b) ** 2))
+
+
+@pytest.mark.parametrize("method", ["collocation", "shooting"])
+def test_time_dependent_integrand_exact_discrete_optimum(method):
+    """min int_0^2 (u - t)^2 dt over piecewise constant u, N = 20: the optimum is the interval
+    mean of t, and the objective is T h^2 / 12 exactly (the variance of t on each interval).
+    The integrand varies where the states do not; without error control on the quadrature
+    (quad_err_con) IDAS integrated it with the states' coarse steps: 0.0026429 (+59 %)."""
+    m, s, u = _double_integrator()
+    T, N = 2.0, 20
+    ocp = OCP(m, t_final=T, intervals=N, method=method)
+    ocp.minimize(integral=(u - m.t) ** 2).initial({"s": 0, "der(s)": 0})
+    sol = ocp.solve()
+    h = T / N
+    assert sol.success
+    assert sol.objective == pytest.approx(T * h**2 / 12, rel=1e-5)  # 0.0016667
+    k = np.ceil(sol.t[1:] / h - 1e-9) - 1  # the interval a grid time ends (left-continuous)
+    assert sol.controls["u"][1:] == pytest.approx(h * (k + 0.5), abs=1e-5)
+
+
+@pytest.mark.parametrize("method", ["collocation", "shooting"])
+def test_state_dependent_integrand_matches_exact_discrete_optimum(method):
+    """Tracking min int (s - sin 3t)^2 + 1e-3 u^2 dt, N = 40, against the exact optimum over
+    the same piecewise constant controls (linear least squares: 0.1306913696). Measured:
+    collocation 0.1306914, shooting 0.1306914 (0.1307262 without quad_err_con)."""
+    m, s, u = _double_integrator()
+    ocp = OCP(m, t_final=2.0, intervals=40, method=method)
+    ocp.minimize(integral=(s - ca.sin(3 * m.t)) ** 2 + 1e-3 * u**2)
+    ocp.initial({"s": 0, "der(s)": 0})
+    sol = ocp.solve()
+    ref = _exact_tracking()
+    assert ref == pytest.approx(0.1306914, abs=1e-7)
+    assert sol.success
+    assert sol.objective == pytest.approx(ref, rel=2e-6)
+
+
+def test_shooting_integrator_controls_the_quadrature_error():
+    from daekit.ocp.shooting import DEFAULT_INTEGRATOR_OPTIONS
+
+    assert DEFAULT_INTEGRATOR_OPTIONS["quad_err_con"] is True
+
+
+# ---------------------------------------------------------------------------- contradictions
+def test_contradictory_boundary_conditions_are_named_not_dropped():
+    """s(0) = 0, s(T) = 1 and s(T) = s(0) cannot hold together: the least-squares point leaves
+    1/3 on each; the report names all three, nothing is dropped, IPOPT is not run."""
+    m, s, u = _double_integrator()
+    ocp = OCP(m, t_final=1.0, intervals=10)
+    ocp.minimize(integral=u**2)
+    ocp.initial({"s": 0}).final({"s": 1}).periodic(["s"])
+    ba = ocp.boundary_analysis()
+    assert [ba.labels[i] for i in ba.conflict] == ["initial s", "final s", "periodic s"]
+    assert ba.conflict_alone and ba.dropped == []
+    assert ba.residual == pytest.approx(1 / 3, rel=1e-6)
+    assert np.abs(ba.conflict_residuals) == pytest.approx([1 / 3] * 3, rel=1e-6)
+    sol = ocp.solve()
+    assert not sol.success and sol.status == "Contradictory_Boundary_Conditions"
+    assert sol.stats["iter_count"] == 0
+    assert ("the boundary conditions initial s, final s, periodic s contradict each other"
+            in sol.report)
+    assert "Dropped" not in sol.report and "branch" not in sol.report
+    with pytest.raises(OCPError, match="initial s, final s, periodic s contradict"):
+        ocp.solve(raise_on_failure=True)
+    # the same conditions minus any one of them are consistent and solve
+    ocp._bc_user.pop()
+    assert ocp.boundary_analysis().conflict == []
+    assert ocp.solve().success
+
+
+def test_design_snippet_contradiction_is_blamed_on_p0_not_on_the_rod():
+    """design.md's OCP snippet: initial p = (1, 0, 0) is on the rod, but final p[0] = 0
+    contradicts periodic p[0] with initial p[0] = 1."""
+    m = dk.examples.pendulum3d()
+    p, u = m.variables["p"].sym, m.variables["u"].sym
+    ocp = dk.OCP(m, t_final=3.0, intervals=60, degree=3)
+    ocp.minimize(integral=ca.sumsqr(u), final=None)
+    ocp.bound("z", -1.0, 15.0)
+    ocp.constrain(ca.dot(p, p), 0.0, 4.0)
+    ocp.initial({"p": [1, 0, 0], "der(p)": [0, 1, 0]})
+    ocp.final({"p[0]": 0.0, "der(p)[0]": 0.0})
+    ocp.periodic(["p", "der(p)"])
+    sol = ocp.solve()
+    assert not sol.success and sol.status == "Contradictory_Boundary_Conditions"
+    assert [sol.boundary.labels[i] for i in sol.boundary.conflict] == [
+        "initial p[0]", "final p[0]", "periodic p[0]"]
+    assert ("the boundary conditions initial p[0], final p[0], periodic p[0] contradict each "
+            "other" in sol.report)
+    assert "rod" not in sol.report.split("CONTRADICTORY", 1)[1]
+    assert "INFEASIBLE" not in sol.report and "Dropped" not in sol.report
+    with pytest.raises(OCPError, match=r"final p\[0\], periodic p\[0\]"):
+        ocp.solve(raise_on_failure=True)
+
+
+def test_condition_contradicting_the_invariants_alone_is_named():
+    # final p[0] = 2 is beyond the unit rod's reach: one condition against the invariants
+    m, p, v, u = planar_pendulum_with_force()
+    ocp = OCP(m, t_final=1.0, intervals=10, degree=2)
+    ocp.minimize(integral=u**2)
+    ocp.initial({"p": [0.0, -1.0], "v": [0.0, 0.0]}).final({"p[0]": 2.0})
+    sol = ocp.solve()
+    assert sol.status == "Contradictory_Boundary_Conditions"
+    assert "the boundary condition final p[0] cannot hold together with the invariants (rod, "\
+        "d/dt rod)" in sol.report

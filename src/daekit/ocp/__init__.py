@@ -5,7 +5,8 @@ optimal control problem is transcribed (direct collocation with Radau IIA by def
 multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
 (invariants) are imposed at the initial time only, and boundary conditions that are redundant
 with them (full periodicity of a constrained mechanism) are detected and dropped (a dropped
-condition the solution turns out to violate is imposed in a second solve); the solution's
+condition the solution turns out to violate is imposed in a second solve; conditions that
+contradict each other are named instead and nothing is solved); the solution's
 :attr:`OCPSolution.report` says what was done.
 
 Example: swing a planar pendulum (index 3 in Cartesian coordinates: unit mass and rod, a
@@ -128,7 +129,8 @@ class OCP:
         (values at the Radau points; collocation only).
     integrator_options : dict
         Options of the shooting integrator (CasADi's IDAS options), overriding daekit's
-        ``{"abstol": 1e-10, "reltol": 1e-10, "max_num_steps": 50000}``; also used by
+        ``{"abstol": 1e-10, "reltol": 1e-10, "max_num_steps": 50000, "quad_err_con": True}``
+        (error control on the integral objective too); also used by
         :meth:`OCPSolution.simulate`.
     verbose : bool
         Let IPOPT print its iterations.
@@ -600,12 +602,48 @@ class OCP:
             f"conditions (residual {res_a:.1e}) and at a random point of that set nearby "
             f"(residual {res_b:.1e}): ranks {ba.ranks[0]} and {ba.ranks[1]}"
         )
-        if res_a > 1e-6:
+        ba.residual = float(res_a)
+        lim = [1e-6 * max(1.0, float(np.max(np.abs(np.concatenate(e)), initial=0.0)))
+               for e in ((a0, aT), (b0, bT))]
+        if res_a > lim[0] and res_b > lim[1]:
+            # starts of the consistency tests: the least-squares point, perturbed copies of it
+            # (a projection can stop at a symmetric stationary point, e.g. p = (0.5, 0, 0)
+            # for a unit rod, which a perturbation breaks), and the guess
+            ya = np.concatenate([a0, aT])
+            sc = np.maximum(1.0, np.abs(ya))
+            starts = [(a0, aT)]
+            for amp in (0.03, 0.3):
+                yp = ya + amp * sc * rng.standard_normal(ya.size)
+                starts.append((yp[:n], yp[n:]))
+            self._find_conflict(ba, [*starts, (v0, vT)], p, T)
+        if res_a > lim[0] and not ba.conflict:
             ba.notes.append(
                 "the conditions could not all be met together with the invariants near the "
                 f"guess (least-squares residual {res_a:.2e})"
             )
         return ba
+
+    def _find_conflict(self, ba: BoundaryAnalysis, starts, p, T) -> None:
+        """Fill ``ba.conflict`` when the boundary conditions contradict each other.
+
+        Called when the projection of the analysis leaves a residual (from two starts): a
+        minimal contradictory subset is found by a deletion filter
+        (:func:`~daekit.ocp.consistency.conflicting_conditions`) that tries to remove the
+        conditions with the smallest residual at the least-squares point first, so that the
+        ones carrying the residual are those named.
+        """
+        from .consistency import conflicting_conditions
+
+        n_fixed = 2 * int(self._man_fun.size1_out(0))
+        a0, aT = starts[0]
+        r = np.asarray(self._ends_fun(a0, aT, p, T)[0], float).ravel()[n_fixed:]
+        order = sorted(range(r.size), key=lambda i: (abs(r[i]), -i))
+        found = conflicting_conditions(self._ends_fun, n_fixed, r.size, starts, p, T, order)
+        if found is None:
+            return
+        ba.conflict, ba.conflict_alone = found
+        ba.conflict_residuals = r
+        ba.kept, ba.dropped = list(range(r.size)), []
 
     # ------------------------------------------------------------------ solve
     def solve(
@@ -629,6 +667,11 @@ class OCP:
             interpolated by names: a collocation solution can start a shooting solve). A
             dict: constant or callable guesses for controls (``{"u": lambda t: ...}``, used
             in the simulation) and constant guesses for states at ``t = 0``.
+            Contradictory boundary conditions (no point satisfies them all together with the
+            algebraic equations and the invariants, e.g. ``initial s = 0``, ``final s = 1`` and
+            ``periodic s``) are found by the boundary analysis before anything is dropped:
+            IPOPT is not run, ``sol.status`` is ``"Contradictory_Boundary_Conditions"`` and
+            the report names a minimal contradictory subset (``sol.boundary.conflict``).
         redundancy : {"drop", "keep"}
             "drop" imposes an independent subset of the boundary conditions on the invariant
             manifold (see :mod:`daekit.ocp.consistency` and :meth:`boundary_analysis`); if a
@@ -748,6 +791,9 @@ class OCP:
         # 3400 variables); switch it off unless the user asks for it
         opts.setdefault("ipopt.mumps_permuting_scaling", 0)
         pre = endpoint_checks(self, g) if check else []
+        if ba.conflict:
+            # contradictory conditions: no NLP point satisfies them, do not run IPOPT
+            pre = [_conflict_message(ba, self._aug.inv_names)] + pre
         try:
             solver = ca.nlpsol("ocp", "ipopt", {"x": V, "f": tr.J, "g": G}, opts)
         except RuntimeError as exc:
@@ -757,7 +803,9 @@ class OCP:
             # the end-point conditions cannot hold: do not run IPOPT into a wall
             fx = ca.Function("fg", [V], [tr.J, G])(x0)
             res = {"x": x0, "f": fx[0], "g": fx[1]}
-            stats = {"return_status": "Infeasible_Boundary_Conditions", "success": False,
+            status = ("Contradictory_Boundary_Conditions" if ba.conflict
+                      else "Infeasible_Boundary_Conditions")
+            stats = {"return_status": status, "success": False,
                      "iter_count": 0}
         else:
             t_solve = _time.perf_counter()
@@ -807,6 +855,31 @@ def _list_or_none(items: list[str]) -> str:
     return ", ".join(items) if items else "nothing"
 
 
+def _conflict_message(ba: BoundaryAnalysis, inv_names) -> str:
+    """The report's line for contradictory boundary conditions (``ba.conflict``)."""
+    names = [ba.labels[i] for i in ba.conflict]
+    res = ba.conflict_residuals
+    what = ("the invariants (" + ", ".join(inv_names) + ") and the algebraic equations"
+            if len(inv_names) else "the algebraic equations")
+    if len(names) == 1:
+        head = f"the boundary condition {names[0]} cannot hold together with {what}"
+        drop = "without it the rest are consistent"
+    elif ba.conflict_alone:
+        head = f"the boundary conditions {', '.join(names)} contradict each other"
+    else:
+        head = (f"the boundary conditions {', '.join(names)} contradict each other "
+                f"(together with {what})")
+    if len(names) > 1:
+        drop = "dropping any one of them makes the rest consistent"
+    resid = ", ".join(f"{ba.labels[i]} {res[i]:+.3g}" for i in ba.conflict) if res.size else ""
+    return (
+        f"CONTRADICTORY BOUNDARY CONDITIONS: {head}; {drop}. "
+        + (f"At the closest point (least squares) their residuals are {resid} "
+           f"(largest residual {ba.residual:.3g}). " if resid else "")
+        + "Nothing was dropped and IPOPT was not run: remove or correct one of them."
+    )
+
+
 class OCPSolution:
     """The solution of an :class:`OCP`: the same interface as a simulation Trajectory.
 
@@ -815,7 +888,9 @@ class OCPSolution:
     success : bool
         IPOPT converged (``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``).
     status : str
-        IPOPT's return status.
+        IPOPT's return status, or daekit's when IPOPT was not run:
+        ``"Contradictory_Boundary_Conditions"`` (see :attr:`BoundaryAnalysis.conflict`),
+        ``"Infeasible_Boundary_Conditions"`` (the end-point check of ``solve(check=True)``).
     objective : float
     t : numpy.ndarray
         Time grid: ``0`` and every collocation point (shooting: the interval boundaries).

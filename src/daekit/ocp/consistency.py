@@ -29,6 +29,13 @@ fool); the rank is the larger of the two. Among the conditions it prefers positi
 to velocity-level ones, then the order given. After solving, a dropped condition that does not
 hold (the solution reached a branch where it is not implied, e.g. ``p[2] = +0.8`` instead of
 ``-0.8`` when ``p[0], p[1]`` are imposed on a sphere) is imposed in a second solve.
+
+Rank deficiency is redundancy only when the conditions are consistent. When the projection
+leaves a residual (from the point above and from a perturbed one), the conditions may
+*contradict* each other (``s(0) = 0``, ``s(T) = 1``, ``s(T) = s(0)`` also has rank 2 of 3):
+:func:`conflicting_conditions` then looks for a minimal contradictory subset by a deletion
+filter (several starts of the projection per test, so that a local least-squares point of a
+consistent set is not taken for a contradiction), and nothing is dropped.
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ import numpy as np
 import scipy.linalg as sla
 
 __all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
-           "project_ends", "restricted_jacobian"]
+           "project_ends", "restricted_jacobian", "conflicting_conditions"]
 
 
 @dataclass
@@ -68,6 +75,18 @@ class BoundaryAnalysis:
         The order of preference of each condition (lower is kept first).
     forced : list of int
         Conditions kept first because a previous solve violated them while dropped.
+    conflict : list of int
+        Non-empty when the conditions contradict each other: a minimal subset of them that
+        cannot hold together (with the algebraic equations and the invariants unless
+        :attr:`conflict_alone`); see :func:`conflicting_conditions`. Nothing is dropped then.
+    conflict_alone : bool
+        The :attr:`conflict` conditions contradict each other even without the algebraic
+        equations and the invariants.
+    conflict_residuals : numpy.ndarray
+        Residual of every condition at the closest (least-squares) point.
+    residual : float
+        Largest residual of the projection onto the set where all conditions, the algebraic
+        equations and the invariants hold (zero when they are consistent).
     """
 
     labels: list[str]
@@ -81,6 +100,10 @@ class BoundaryAnalysis:
     ranks: list[int] = field(default_factory=list)
     preference: list[int] = field(default_factory=list)
     forced: list[int] = field(default_factory=list)
+    conflict: list[int] = field(default_factory=list)
+    conflict_alone: bool = False
+    conflict_residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residual: float = 0.0
 
     @property
     def n_conditions(self) -> int:
@@ -279,3 +302,76 @@ def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
         y, r, J = yn, rn, Jn
     worst = float(np.max(np.abs(r), initial=0.0))
     return y[:n], y[n:], worst
+
+
+def _rows_of(fun, rows):
+    """``fun`` restricted to the residual rows ``rows`` (for :func:`project_ends`)."""
+    rows = np.asarray(rows, dtype=int)
+
+    def sub(v0, vT, p, T):
+        r, J = fun(v0, vT, p, T)
+        r = np.asarray(r, float).ravel()
+        J = np.asarray(J, float).reshape(r.size, -1)
+        return r[rows], J[rows]
+
+    return sub
+
+
+def conflicting_conditions(
+    fun,
+    n_fixed: int,
+    n_conditions: int,
+    starts,
+    p,
+    T,
+    order=None,
+    tol: float = 1e-6,
+) -> tuple[list[int], bool] | None:
+    """A minimal subset of boundary conditions that cannot hold together (deletion filter).
+
+    ``fun(v0, vT, p, T)`` returns the residual and Jacobian (with respect to ``(v0, vT)``) of
+    ``n_fixed`` equations that always hold (the algebraic equations and the invariants at both
+    ends) followed by the ``n_conditions`` boundary conditions. A set of conditions counts as
+    *consistent* when :func:`project_ends` from any of the ``starts`` (pairs ``(v0, vT)``)
+    reaches a largest residual below ``tol * max(1, |start|)``; the Gauss-Newton projection can
+    stop at a local least-squares point of a consistent nonlinear set, so several starts (one
+    perturbed) guard against calling it contradictory.
+
+    Deletion filter: going through the conditions in ``order`` (default: as given; pass them
+    by increasing residual at the least-squares point so that those carrying the residual are
+    kept), a condition whose removal leaves the rest still contradictory is removed for good.
+    What remains is *irreducible*: it is contradictory, and dropping any one of its conditions
+    makes it consistent. Returns ``(subset, alone)``; ``alone`` says whether the subset is
+    contradictory even without the ``n_fixed`` equations. An empty subset means the fixed
+    equations cannot hold by themselves. Returns None when all the conditions are consistent
+    after all (a start other than the first reaches them).
+
+    >>> # x(0) = 0, x(T) = 1 and x(T) = x(0) contradict each other; y(0) = 2 plays no part
+    >>> def fun(v0, vT, p, T):
+    ...     r = np.array([v0[0], vT[0] - 1, vT[0] - v0[0], v0[1] - 2])
+    ...     J = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [-1, 0, 1, 0], [0, 1, 0, 0]])
+    ...     return r, J
+    >>> conflicting_conditions(fun, 0, 4, [(np.zeros(2), np.zeros(2))], None, 1.0)
+    ([0, 1, 2], True)
+    """
+    starts = [(np.asarray(a, float).ravel(), np.asarray(b, float).ravel()) for a, b in starts]
+
+    def consistent(conds, fixed: bool = True) -> bool:
+        rows = (list(range(n_fixed)) if fixed else []) + [n_fixed + i for i in conds]
+        if not rows:
+            return True
+        sub = _rows_of(fun, rows)
+        for a, b in starts:
+            lim = tol * max(1.0, float(np.max(np.abs(np.concatenate([a, b])), initial=0.0)))
+            if project_ends(sub, a, b, p, T)[2] <= lim:
+                return True
+        return False
+
+    keep = list(range(n_conditions))
+    if consistent(keep):
+        return None
+    for i in (range(n_conditions) if order is None else order):
+        rest = [j for j in keep if j != i]
+        if not consistent(rest):
+            keep = rest
+    return sorted(keep), bool(keep) and not consistent(keep, fixed=False)

@@ -95,11 +95,17 @@ def quiet(enabled: bool = True):
         with contextlib.suppress(Exception):
             stream.flush()
     devnull = os.open(os.devnull, os.O_WRONLY)
+    # CasADi's warnings (e.g. an integrator's "mxstep steps taken" inside a line search) go
+    # through Python's sys.stdout/sys.stderr, which need not be file descriptors 1 and 2
+    # (pytest's capture, notebooks): silence those objects too
+    sink = open(os.devnull, "w")  # noqa: SIM115 - closed below
     try:
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        yield
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            yield
     finally:
+        sink.close()
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()

@@ -46,7 +46,12 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
         )
     if ba.labels:
         n = ba.n_conditions
-        if ocp._kept == list(range(n)) and ba.dropped:
+        if ba.conflict:
+            lines.append(
+                f"Boundary conditions: {n} given; they contradict each other (see below), so "
+                "none was dropped as redundant."
+            )
+        elif ocp._kept == list(range(n)) and ba.dropped:
             lines.append(
                 f"Boundary conditions: {n} given, but only {ba.rank} are independent on the "
                 f"invariant manifold (dimension {ba.manifold_dims[0]} at t = 0 and "
@@ -79,7 +84,9 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
             lines.append(f"Boundary conditions: {n}, independent on the invariant manifold.")
         if ba.notes:
             lines.append("Boundary analysis: " + "; ".join(ba.notes) + ".")
+    not_run = status in ("Contradictory_Boundary_Conditions", "Infeasible_Boundary_Conditions")
     lines.append(
+        f"IPOPT not run ({status}; {stats['t_total']:.3g} s to build the NLP)." if not_run else
         f"IPOPT: {status} after {stats.get('iter_count', '?')} iterations "
         f"({stats['t_total']:.3g} s in all, {stats['t_build']:.3g} s to build the NLP)."
     )
@@ -138,7 +145,7 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
                 "All constraints hold at the returned point: the failure is one of convergence "
                 "(try more iterations, a better guess, or scaling)."
             )
-        else:
+        elif not ba.conflict:
             lines.append(
                 "Check the constraints named above: they cannot hold together with the "
                 "dynamics and the invariants (or need a better initial guess)."

@@ -4,12 +4,12 @@ labels (so that a failed solve can name the constraint at fault), and the soluti
 from __future__ import annotations
 
 import contextlib
-import os
-import sys
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+
+from .._cio import c_output
 
 __all__ = ["NLPBuilder", "RowGroup", "quiet"]
 
@@ -78,38 +78,11 @@ class NLPBuilder:
 @contextlib.contextmanager
 def quiet(enabled: bool = True):
     """Silence output written by C code (IPOPT, SUNDIALS' error handler, CasADi's evaluation
-    warnings when an integration fails inside a line search) to file descriptors 1 and 2.
+    warnings when an integration fails inside a line search), at the file-descriptor level and
+    through Python's ``sys.stdout``/``sys.stderr`` (see :func:`daekit._cio.c_output`).
 
     Errors still arrive as Python exceptions; ``enabled=False`` (``verbose=True``) lets
     everything through.
     """
-    if not enabled:
+    with c_output(enabled):
         yield
-        return
-    try:
-        saved = (os.dup(1), os.dup(2))
-    except OSError:  # pragma: no cover - no file descriptors (embedded interpreters)
-        yield
-        return
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    # CasADi's warnings (e.g. an integrator's "mxstep steps taken" inside a line search) go
-    # through Python's sys.stdout/sys.stderr, which need not be file descriptors 1 and 2
-    # (pytest's capture, notebooks): silence those objects too
-    sink = open(os.devnull, "w")  # noqa: SIM115 - closed below
-    try:
-        os.dup2(devnull, 1)
-        os.dup2(devnull, 2)
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            yield
-    finally:
-        sink.close()
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, devnull):
-            os.close(fd)

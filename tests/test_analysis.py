@@ -119,3 +119,143 @@ def test_explicit_definitions_match_the_reduction():
     a = dk.analyze(m)
     assert a.definitions == ["kinematics[0]", "kinematics[1]", "kinematics[2]"]
     assert dk.reduce_index(m).invariant_names == ["rod", "d/dt rod"]
+
+
+# ----------------------------------------------------------------------------- review fixes
+def chain_with_f1(n_links, coupling=0.0):
+    """planar_chain(N) (index 3, DOF 2N) plus Gear and Petzold's F1 pair with eta = -2
+    (index 2, DOF 0; reference-problems.md): independent DAEs, so index 3 and DOF 2N. With
+    ``coupling`` != 0 the chain's q[0] enters F1's forcing: then both are one connected part,
+    still index 3 and DOF 2N (F1 only needs q, never its derivative)."""
+    import casadi as ca
+
+    m = dk.examples.planar_chain(n_links)
+    y, z, t = m.state("y"), m.state("z"), m.t
+    q = m.variables["q"].sym
+    m.equation(m.der(y) - 2 * t * m.der(z) - z - ca.cos(t) + coupling * q[0], name="dynamic")
+    m.equation(y - 2 * t * z - ca.sin(t), name="constraint")
+    return m
+
+
+def test_partial_structural_failure_is_analyzed_numerically_only_where_needed():
+    a = dk.analyze(chain_with_f1(2))
+    assert not a.structurally_ok
+    assert (a.structural_index, a.structural_dof) == (3, 5)
+    assert (a.index, a.dof) == (3, 4)
+    assert a.singular_blocks == [["dynamic", "constraint"]]
+    assert a.numeric.equations == ["dynamic", "constraint"]
+    assert (a.numeric.index, a.numeric.dof) == (2, 0)  # F1 alone
+    assert a.structural_part == (3, 4)  # the chain alone
+    text = a.explain()
+    assert "structural analysis FAILS" in text.replace("Structural", "structural")
+    assert "equations dynamic, constraint" in text
+    assert "index 3 (right)" in text and "5 degrees of freedom (wrong: the true number is 4)" in text
+    assert "both are wrong" not in text
+
+
+def test_partial_failure_scales_to_big_models():
+    import time
+
+    t0 = time.perf_counter()
+    a = dk.analyze(chain_with_f1(400))  # 2002 equations; the whole derivative array took 383 s
+    assert time.perf_counter() - t0 < 3.0
+    assert (a.index, a.dof, a.structurally_ok) == (3, 800, False)
+
+
+def test_numeric_part_can_raise_the_index():
+    # F2 (index 3, DOF 0) next to an ODE x' = -x (index 0, DOF 1): index 3, DOF 1
+    import casadi as ca
+
+    m = dk.Model("f2_and_decay")
+    x, y, w = m.state("x"), m.algebraic("y"), m.state("w")
+    m.equation(-m.der(x, 2) - y - ca.sin(m.t), name="forced")
+    m.equation(m.der(x, 2) + x + y - m.t, name="spring")
+    m.equation(m.der(w) + w, name="decay")
+    a = dk.analyze(m)
+    assert (a.index, a.dof) == (3, 1)
+    assert a.structural_part == (0, 1)
+    assert (a.structural_index, a.structural_dof) == (1, 3)
+    assert "index 1 (wrong: the true index is 3)" in a.explain()
+
+
+def test_coupled_failure_small_is_exact_and_big_raises_quickly():
+    import time
+
+    a = dk.analyze(chain_with_f1(3, coupling=0.1))  # one connected part: all numeric
+    assert a.structural_part is None and len(a.numeric.equations) == 17
+    assert (a.index, a.dof) == (3, 6)
+    t0 = time.perf_counter()
+    with pytest.raises(dk.ModelError, match=r"fails in the equations 'dynamic', 'constraint'.*"
+                                            r"1002 equations.*point="):
+        dk.analyze(chain_with_f1(200, coupling=0.1))
+    assert time.perf_counter() - t0 < 3.0
+
+
+def domain_model(root="x - 1"):
+    import casadi as ca
+
+    m = dk.Model("dom")
+    x, z = m.state("x"), m.algebraic("z")
+    m.equation(m.der(x) + z, name="a")
+    m.equation(z * ca.sqrt(eval(root, {"x": x})) - 1, name="b")
+    return m
+
+
+def test_points_outside_the_domain_are_retried_then_named():
+    m = domain_model()  # undefined at the first draws (x in [0.1, 0.3]): index 1, DOF 1
+    a = dk.analyze(m)
+    assert (a.index, a.dof, a.structurally_ok) == (1, 1, True)
+    assert dk.is_index1(m) and differential_index(m).index == 1
+    for call in (dk.analyze, dk.is_index1, differential_index):
+        with pytest.raises(dk.ModelError, match=r"equation\(s\) 'b' is not finite.*point="):
+            call(domain_model("-x**2 - 1"))  # nowhere defined
+        with pytest.raises(dk.ModelError, match=r"'b' is not finite"):
+            call(m, point={"x": 0.5})  # the user's value is kept
+
+
+def test_bad_points_are_named():
+    m = dk.examples.pendulum3d()
+    with pytest.raises(dk.ModelError, match=r"point\['p'\] has 2 values, but 'p' has 3"):
+        dk.analyze(m, point={"p": [1, 2]})
+    with pytest.raises(dk.ModelError, match=r"point\['p'\] = 'abc' is not numeric.*3 numbers"):
+        dk.analyze(m, point={"p": "abc"})
+    with pytest.raises(dk.ModelError, match=r"point\['p'\] has 2 values"):
+        dk.is_index1(m, point={"p": [1, 0]})
+    with pytest.raises(dk.ModelError, match=r"point must be a dict"):
+        dk.analyze(m, point=[1, 2])
+
+
+def test_definitions_are_the_reductions_eliminations():
+    m = dk.Model("cyclic")
+    p, q, v, w = (m.state(s) for s in "pqvw")
+    lam = m.algebraic("l")
+    m.equation(m.der(p) - m.der(q) - v, name="A")
+    m.equation(m.der(p) + m.der(q) - w, name="B")
+    m.equation(m.der(v) + lam * (p - q), name="C")
+    m.equation(m.der(w) + lam * (p + q) + 9.81, name="D")
+    m.equation(p**2 + q**2 - 1, name="rod")
+    a = dk.analyze(m)
+    r = dk.reduce_index(m)
+    assert r.invariant_names == ["A", "B", "rod", "d/dt rod"]  # the cyclic definitions stay
+    assert a.definitions == [e["equation"] for e in r.info["eliminated"]] == []
+    text = a.explain()
+    assert "Consistency conditions (must hold at the initial time): A, B, rod, d/dt rod." in text
+    assert "by construction" not in text
+    m3 = dk.examples.pendulum3d()
+    assert dk.analyze(m3).definitions == [e["equation"] for e in dk.reduce_index(m3).info["eliminated"]]
+
+
+def test_easy_test_blockwise_rank_above_the_dense_limit():
+    # K copies of F2: leading Jacobian w.r.t. (x'', y) is blockdiag([[-1, -1], [1, 1]]): rank K,
+    # every equation in the left null space (1, 1) of its block
+    import casadi as ca
+
+    for k, dense in ((10, True), (70, False)):
+        m = dk.Model("oki_many")
+        x, y = m.state("x", k), m.algebraic("y", k)
+        m.equation(-m.der(x, 2) - y - ca.sin(m.t), name="forced")
+        m.equation(m.der(x, 2) + x + y - m.t, name="spring")
+        assert (m.n_equations <= 120) == dense
+        e = dk.is_index1(m)
+        assert (e.rank, e.size, bool(e)) == (k, 2 * k, False)
+        assert sorted(e.deficient_equations) == sorted(m.equation_names)

@@ -168,3 +168,36 @@ def test_non_models_and_lists():
     assert m.n_equations == 2
     with pytest.raises(dk.ModelError, match="a list must hold CasADi SX expressions or numbers"):
         m.equation([object()], name="bad")
+
+
+def test_parameter_values_must_be_numbers():
+    m = dk.Model("p")
+    with pytest.raises(dk.ModelError, match=r"parameter 'k' needs a number .* got 'abc'"):
+        m.parameter("k", "abc")
+    with pytest.raises(dk.ModelError, match=r"parameter 'k' needs a number .* got None"):
+        m.parameter("k", None)
+    assert m.parameter("k", [1, 2]).numel() == 2
+
+
+def test_structural_zeros_in_an_equation_are_rejected():
+    m = dk.Model("sparse")
+    x = m.state("x", 2)
+    with pytest.raises(dk.ModelError, match=r"equation 'e': e\[1\], e\[2\] are identically zero"):
+        m.equation(ca.diag(m.der(x) + x), name="e")  # 2x2 diagonal: entries 1, 2 are "0 = 0"
+    with pytest.raises(dk.ModelError, match=r"equation 'f': f\[1\] is identically zero"):
+        m.equation(ca.vertcat(m.der(x[0]), 0), name="f")
+    m.equation(m.der(x) + x, name="e")
+    assert m.n_equations == 2
+
+
+def test_equation_without_unknowns_is_named():
+    m = dk.Model("ctrl")
+    x = m.state("x")
+    u = m.control("u")
+    m.equation(m.der(x) - x, name="a")
+    m.equation(u - 1, name="b")
+    with pytest.raises(dk.StructuralError) as err:
+        m.validate()
+    assert "the equations 'b' involve no unknowns" in str(err.value)
+    assert "only the unknowns ," not in str(err.value)
+    assert err.value.overdetermined_equations == ["b"]

@@ -10,6 +10,17 @@ form (rows and columns scaled by powers of two to unit max norm): singular value
 ``RANK_RTOL * max(shape) * sigma_max`` count as zero, ``RANK_RTOL = 1e3 * machine epsilon``.
 Big blocks (more than ``DENSE_LIMIT`` rows) are factorized by sparse LU instead, and a pivot
 below the same relative tolerance counts as zero.
+
+Where structural analysis fails, only the part of the model that needs it goes through the
+(dense) derivative array: the connected components of the Sigma pattern that contain a singular
+block of the system Jacobian (see :func:`analyze`); each component may have at most
+``NUMERIC_LIMIT`` unknowns, and its derivative array at most ``ARRAY_LIMIT`` rows, else a
+:class:`~daekit.errors.ModelError` says which equations fail and what to do.
+
+Test points: values not given in ``point`` are drawn at random (seeded), first from
+``[0.1, 0.3]``; where a Jacobian is not finite there (``sqrt(x - 1)`` at ``x = 0.2``), other
+seeded draws follow (``[0.5, 1.5]``, standard normal, ``[1.5, 3]``, ``N(0, 3^2)``) before a
+:class:`~daekit.errors.ModelError` names the equations and asks for ``point=``.
 """
 
 from __future__ import annotations
@@ -20,10 +31,11 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
 
 from .errors import ModelError
 from .model import Model
-from .structure import block_triangular, dulmage_mendelsohn, sigma_method
+from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
@@ -32,6 +44,9 @@ __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differen
 RANK_RTOL = 1e3 * np.finfo(float).eps
 DENSE_LIMIT = 400  # largest BLT block of the system Jacobian checked by a dense SVD
 EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
+NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array is computed
+ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take many seconds)
+BATCH = 60  # small connected parts are stacked into derivative arrays of about this many unknowns
 
 
 # ----------------------------------------------------------------------------- numerics
@@ -57,8 +72,9 @@ def numeric_rank(a: np.ndarray) -> tuple[int, float]:
     return int(np.sum(s > tol)), float(s[-1] / s[0]) if len(s) == min(a.shape) else 0.0
 
 
-def _sparse_rcond(a: sp.csc_matrix) -> float:
-    """Estimate of sigma_min / sigma_max of a big square sparse matrix via sparse LU pivots."""
+def _sparse_rcond(a: sp.csc_matrix) -> tuple[float, int]:
+    """Estimate of sigma_min / sigma_max of a big square sparse matrix via sparse LU pivots
+    (after equilibration), and the number of pivots below ``RANK_RTOL * n`` times the largest."""
     a = sp.csc_matrix(a)
     r = np.asarray(np.abs(a).max(axis=1).todense()).ravel()
     r[r == 0] = 1.0
@@ -68,53 +84,140 @@ def _sparse_rcond(a: sp.csc_matrix) -> float:
     a = sp.csc_matrix(a @ sp.diags(1.0 / c))
     try:
         lu = spla.splu(a, permc_spec="COLAMD")
-    except RuntimeError:
-        return 0.0
+    except RuntimeError:  # exactly singular
+        return 0.0, 1
     d = np.abs(lu.U.diagonal())
-    return float(d.min() / d.max()) if d.size and d.max() > 0 else 0.0
+    if not d.size or d.max() == 0:
+        return 0.0, max(a.shape[0], 1)
+    small = int(np.sum(d <= RANK_RTOL * a.shape[0] * d.max()))
+    return float(d.min() / d.max()), small
 
 
 # ----------------------------------------------------------------------------- points
-def _random_value(rng: np.random.Generator, size: int) -> np.ndarray:
-    # Small positive values: generic, and safe for sqrt, log and exp of differences.
-    return rng.uniform(0.1, 0.3, size)
+# Distributions of the random test values, tried in this order until the Jacobians are finite.
+_DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
+          ("uniform", 1.5, 3.0), ("normal", 0.0, 3.0))
+
+
+class _NonFinite(Exception):
+    """A Jacobian evaluated at the test point has NaN or inf entries in the given rows."""
+
+    def __init__(self, labels: list[str]) -> None:
+        super().__init__(", ".join(labels))
+        self.labels = labels
 
 
 class _Point:
     """Numeric values for every symbol of a model (unknowns and derivatives, controls, t,
-    parameters): the user's values where given, defaults for parameters, random elsewhere."""
+    parameters): the user's values where given, defaults for parameters, random elsewhere
+    (drawn from ``_DRAWS[attempt]``, seeded by ``seed`` and ``attempt``)."""
 
-    def __init__(self, model: Model, point: dict | None, seed: int = 0) -> None:
+    def __init__(self, model: Model, point: dict | None, seed: int = 0, attempt: int = 0) -> None:
         self.model = model
-        self.rng = np.random.default_rng(seed)
+        self.rng = np.random.default_rng(seed + 7919 * attempt)
+        self.draw = _DRAWS[attempt]
         self.values: dict[int, float] = {}  # element hash -> value
-        self.t = float(point["t"]) if point and "t" in point else float(_random_value(self.rng, 1)[0])
+        point = _check_point(model, point)
+        self.t = point["t"][0] if "t" in point else float(self._random(1)[0])
         for var in model.parameters:
             for i in range(var.size):
                 self.values[var.sym[i].element_hash()] = float(var.default[i])
-        for name, val in (point or {}).items():
+        for name, arr in point.items():
             if name == "t":
                 continue
-            elems = model.resolve(name)
-            arr = np.broadcast_to(np.asarray(val, dtype=float).ravel(), (len(elems),))
-            for (var, i, order), v in zip(elems, arr):
+            for (var, i, order), v in zip(model.resolve(name), arr, strict=True):
                 self.values[var.der(order)[i].element_hash()] = float(v)
+
+    def _random(self, size: int) -> np.ndarray:
+        kind, a, b = self.draw
+        # the first draw: small positive values, generic and safe for sqrt, log and exp of
+        # differences; the later ones reach other parts of a model's domain
+        return self.rng.uniform(a, b, size) if kind == "uniform" else self.rng.normal(a, b, size)
 
     def evaluate(self, syms: list[ca.SX]) -> np.ndarray:
         out = np.empty(len(syms))
         for k, s in enumerate(syms):
             h = s.element_hash()
             if h not in self.values:
-                self.values[h] = float(_random_value(self.rng, 1)[0])
+                self.values[h] = float(self._random(1)[0])
             out[k] = self.values[h]
         return out
 
-    def jacobian(self, expr: ca.SX, wrt: ca.SX) -> np.ndarray:
-        """Numeric (dense) Jacobian of ``expr`` w.r.t. ``wrt`` at this point."""
+    def sparse(self, expr: ca.SX) -> sp.csr_matrix:
+        """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix."""
         th = self.model.t.element_hash()
-        syms = [s for s in ca.symvar(ca.vertcat(expr, wrt)) if s.element_hash() != th]
-        f = ca.Function("dense_jacobian", [self.model.t, ca.vertcat(*syms)], [ca.jacobian(expr, wrt)])
-        return np.asarray(f(self.t, self.evaluate(syms)), dtype=float)
+        syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        f = ca.Function("at_point", [self.model.t, ca.vertcat(*syms)], [expr])
+        val = ca.DM(f(self.t, self.evaluate(syms)))
+        r, c = val.sparsity().get_triplet()
+        return sp.csr_matrix((np.asarray(val.nonzeros(), dtype=float), (r, c)), shape=val.shape)
+
+
+def _check_point(model: Model, point) -> dict[str, np.ndarray]:
+    """The user's ``point`` as {name: values}, each checked for type, size and finiteness."""
+    if point is None:
+        return {}
+    if not isinstance(point, dict):
+        raise ModelError(
+            f"model {model.name!r}: point must be a dict of values by name, e.g. "
+            f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"
+        )
+    out = {}
+    for name, val in point.items():
+        if not isinstance(name, str):
+            raise ModelError(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
+        size = 1 if name == "t" else len(model.resolve(name))
+        try:
+            arr = np.asarray(val, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise ModelError(
+                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric; give "
+                + ("a number" if size == 1 else f"a number or {size} numbers")
+            ) from None
+        if arr.size == 1:
+            arr = np.full(size, arr[0])
+        if arr.size != size:
+            raise ModelError(
+                f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
+                f"{size} element(s); give {size} values (or one for all)"
+            )
+        if not np.all(np.isfinite(arr)):
+            raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
+        out[name] = arr
+    return out
+
+
+def _at_finite_point(model: Model, point: dict | None, seed: int, work, what: str):
+    """``work(pt)`` at the first test point where it meets only finite Jacobians.
+
+    ``work`` raises :class:`_NonFinite` naming the equations with NaN or inf entries; after
+    all draws of ``_DRAWS`` a :class:`ModelError` names them and asks for ``point=``.
+    """
+    _check_point(model, point)
+    first = None
+    for attempt in range(len(_DRAWS)):
+        try:
+            return work(_Point(model, point, seed, attempt))
+        except _NonFinite as exc:
+            first = first or exc
+    labels = list(dict.fromkeys(first.labels))
+    shown = ", ".join(repr(x) for x in labels[:8]) + (", ..." if len(labels) > 8 else "")
+    raise ModelError(
+        f"model {model.name!r}: {what}: the Jacobian of the equation(s) {shown} is not finite "
+        f"(NaN or inf) at {len(_DRAWS)} test points; these equations are undefined there (square "
+        "root or log of a negative number, division by zero, ...). Give a point inside the "
+        f"model's domain, e.g. {what}(model, point={{'x': 2.0, 'der(x)': 0.5}}) with your "
+        "variables' names; values not given are drawn at random."
+    )
+
+
+def _require_finite(val: sp.csr_matrix, labels) -> None:
+    """Raise :class:`_NonFinite` naming the rows of ``val`` (by ``labels[row]``) with NaN/inf."""
+    coo = val.tocoo()
+    bad = ~np.isfinite(coo.data)
+    if np.any(bad):
+        rows = sorted(set(coo.row[bad].tolist()))
+        raise _NonFinite([labels(r) if callable(labels) else labels[r] for r in rows])
 
 
 # ----------------------------------------------------------------------------- easy test
@@ -141,9 +244,12 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``.
 
     The Jacobian is evaluated sparsely. Up to ``EASY_DENSE_LIMIT`` equations its rank comes
-    from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the conditioning of
-    each diagonal block of its block triangular form (dense SVD up to ``DENSE_LIMIT``, sparse LU
-    beyond).
+    from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the diagonal blocks
+    of its block triangular form: each block's rank deficiency (dense SVD up to
+    ``DENSE_LIMIT`` rows, sparse LU pivots beyond) is summed, and each deficient block names
+    the equations of its left null space. The sum is exact when the deficient blocks do not
+    couple through the off-diagonal part (then ``rank = n - sum``), and otherwise a lower bound
+    of the rank.
 
     Example
     -------
@@ -155,29 +261,30 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     """
     Model.require(model, "is_index1")
     model.validate()
+    return _at_finite_point(model, point, seed, lambda pt: _easy_test(model, pt), "is_index1")
+
+
+def _easy_test(model: Model, pt: _Point) -> EasyTest:
     inc = model.incidence()
     n = inc.n_unknowns
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     keep = inc.vals == highest[inc.cols]
-    pt = _Point(model, point, seed)
     jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
     eq_names = model.equation_names
     if n <= EASY_DENSE_LIMIT:
-        u, sv, _ = np.linalg.svd(_equilibrate(jac.toarray()))
-        tol = RANK_RTOL * n * sv[0] if sv.size and sv[0] > 0 else np.inf
-        rank = int(np.sum(sv > tol))
-        rcond = float(sv[-1] / sv[0]) if rank == n else 0.0
-        names: list[str] = []
-        if rank < n:
-            weight = np.linalg.norm(u[:, rank:], axis=1)
-            names = [eq_names[i] for i in np.nonzero(weight > 1e-8)[0]]
+        check = _rank_check(jac, list(range(n)), list(range(n)))
+        rank, rcond = check.rank, check.rcond
+        names = [eq_names[i] for i in check.deficient_rows]
     else:
         coo = jac.tocoo()
         dm = dulmage_mendelsohn(n, n, coo.row, coo.col)
         if dm.is_square_nonsingular:
-            rcond = _blockwise_rcond(jac, dm.row_match)
-            rank, names = (n, []) if rcond > 0 else (n - 1, [])
+            checks = [_rank_check(jac, br, bc)
+                      for br, bc in block_triangular(n, coo.row, coo.col, dm.row_match)]
+            rank = n - sum(ch.size - ch.rank for ch in checks)
+            rcond = min((ch.rcond for ch in checks), default=1.0)
+            names = [eq_names[i] for ch in checks for i in ch.deficient_rows]
         else:
             rank, rcond = dm.matching_size, 0.0
             names = [eq_names[i] for i in dm.over_rows]
@@ -185,26 +292,52 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     return EasyTest(rank == n, rank, n, cond, names)
 
 
+@dataclass
+class _RankCheck:
+    """Numeric rank of one square diagonal block ``jac[rows][:, cols]``."""
+
+    rows: list[int]
+    size: int
+    rank: int
+    rcond: float  # sigma_min / sigma_max (0 when singular)
+    deficient_rows: list[int]  # rows (global) with weight in the block's left null space
+
+
+def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
+    """Rank, reciprocal condition and left-null-space rows of a square block of ``jac``: SVD
+    of the equilibrated block up to ``DENSE_LIMIT`` rows, sparse LU pivots beyond (then the
+    deficiency is the number of tiny pivots, and all the block's rows are named)."""
+    rows = [int(i) for i in rows]
+    size = len(rows)
+    sub = jac[rows][:, [int(j) for j in cols]]
+    if size <= DENSE_LIMIT:
+        u, sv, _ = np.linalg.svd(_equilibrate(sub.toarray()))
+        tol = RANK_RTOL * size * sv[0] if sv.size and sv[0] > 0 else np.inf
+        rank = int(np.sum(sv > tol))
+        rcond = float(sv[-1] / sv[0]) if rank == size else 0.0
+        weight = np.linalg.norm(u[:, rank:], axis=1) if rank < size else np.zeros(size)
+        return _RankCheck(rows, size, rank, rcond, [rows[k] for k in np.nonzero(weight > 1e-8)[0]])
+    rc, small = _sparse_rcond(sub)
+    if rc > RANK_RTOL * size and small == 0:
+        return _RankCheck(rows, size, size, rc, [])
+    return _RankCheck(rows, size, size - max(small, 1), 0.0, rows)
+
+
 # ----------------------------------------------------------------------------- derivative array
 @dataclass
 class DerivativeArrayResult:
     """Result of :func:`differential_index`: the index, the true number of degrees of freedom,
-    and the ranks seen at each level of the derivative array."""
+    the ranks seen at each level of the derivative array (left empty when the equations were
+    checked in several independent parts), and the equations analyzed."""
 
     index: int
     dof: int
     ranks: list[tuple[int, int, int]]  # (level, rank of J, rank of J without the targets)
     constraints_on_states: int
+    equations: list[str] = field(default_factory=list)  # the equations analyzed
 
     def __int__(self) -> int:
         return self.index
-
-
-def _time_derivative(expr: ca.SX, syms: list[ca.SX], next_syms: list[ca.SX], t: ca.SX) -> ca.SX:
-    """Total time derivative by a directional derivative along (1, x', x'', ...)."""
-    v = ca.vertcat(t, *syms)
-    w = ca.vertcat(1, *next_syms)
-    return ca.jtimes(expr, v, w)
 
 
 def differential_index(
@@ -222,6 +355,13 @@ def differential_index(
     array's Jacobian w.r.t. the states beyond that w.r.t. the derivatives (the independent
     constraints on the states at level ``k``).
 
+    Parts of the model that share no unknown (connected components of the Sigma pattern) are
+    independent DAEs: the derivative array of the whole is block diagonal in them, so the
+    index is the largest of theirs and the DOF the sum. Each component is treated alone (small
+    ones stacked together, ``BATCH``), with sparse Jacobians per level; a component with more
+    than ``NUMERIC_LIMIT`` unknowns raises :class:`ModelError` (use :func:`analyze`, which
+    needs the derivative array only where structural analysis fails).
+
     Example
     -------
     >>> import daekit as dk
@@ -231,51 +371,158 @@ def differential_index(
     Model.require(model, "differential_index")
     model.validate()
     inc = model.incidence()
-    n = inc.n_unknowns
-    m = np.zeros(n, dtype=np.int64)
-    np.maximum.at(m, inc.cols, inc.vals)
+    eq_lab, unk_lab = _components(inc)
+
+    def work(pt: _Point) -> DerivativeArrayResult:
+        return _numeric_part(model, eq_lab, unk_lab, np.unique(eq_lab), pt, max_index,
+                             "differential_index")
+
+    return _at_finite_point(model, point, seed, work, "differential_index")
+
+
+def _components(inc) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of the Sigma pattern as a bipartite graph (equations and unknowns
+    linked by every entry, of any order): component label of each equation and unknown."""
+    n_e, n_u = inc.n_equations, inc.n_unknowns
+    g = sp.csr_matrix((np.ones(len(inc.rows), np.int8), (inc.rows, n_e + inc.cols)),
+                      shape=(n_e + n_u, n_e + n_u))
+    _, labels = connected_components(g, directed=False)
+    return labels[:n_e], labels[n_e:]
+
+
+def _numeric_part(model: Model, eq_lab, unk_lab, comps, pt: _Point, max_index, what: str,
+                  singular: list[str] | None = None) -> DerivativeArrayResult:
+    """Derivative-array index and DOF of the components ``comps`` (independent DAEs: index =
+    max, DOF = sum), stacked into batches of about ``BATCH`` unknowns."""
+    eq_names = model.equation_names
+    parts = []
+    for comp in comps:
+        rows = np.nonzero(eq_lab == comp)[0]
+        if len(rows) > NUMERIC_LIMIT:
+            raise _too_big(model, rows, what, singular)
+        parts.append((rows, np.nonzero(unk_lab == comp)[0]))
+    parts.sort(key=lambda rc: rc[0][0])
+    batches, cur = [], []
+    for rc in parts:
+        if cur and sum(len(r) for r, _ in cur) + len(rc[0]) > BATCH:
+            batches.append(cur)
+            cur = []
+        cur.append(rc)
+    if cur:
+        batches.append(cur)
+    inc = model.incidence()
+    m_all = np.zeros(inc.n_unknowns, dtype=np.int64)
+    np.maximum.at(m_all, inc.cols, inc.vals)
+    results = []
+    for batch in batches:
+        rows = np.concatenate([r for r, _ in batch])
+        cols = np.concatenate([c for _, c in batch])
+        results.append(_derivative_array(model, rows, cols, m_all, pt, max_index, what))
+    best = max(results, key=lambda r: r.index)
+    return DerivativeArrayResult(
+        index=best.index,
+        dof=sum(r.dof for r in results),
+        ranks=best.ranks if len(results) == 1 else [],
+        constraints_on_states=sum(r.constraints_on_states for r in results),
+        equations=[eq_names[i] for rc in parts for i in rc[0]],
+    )
+
+
+def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> ModelError:
+    eq_names = model.equation_names
+    part = (f"the connected part of the model that contains them (equations linked by shared "
+            f"unknowns) has {len(rows)} equations (e.g. "
+            f"{_short([eq_names[i] for i in rows], 6)}), too many for a numeric check of its "
+            f"derivative array (limit {NUMERIC_LIMIT}).")
+    if singular:
+        head = (f"structural analysis fails in the equations {_short(singular)} (their block "
+                "of the system Jacobian is singular at the test point), and ")
+        fix = (" If the singularity is an accident of the random test point, give a point "
+               f"({what}(model, point={{...}})); otherwise rewrite those equations so that "
+               "their structure shows the true dependencies (e.g. eliminate a derivative that "
+               "cancels).")
+    else:
+        head = "its equations are checked numerically part by part, and "
+        fix = (" Use dk.analyze(model): it needs the derivative array only where structural "
+               "analysis fails.")
+    return ModelError(f"model {model.name!r}: {what}: {head}{part}{fix}")
+
+
+def _short(names: list[str], limit: int = 10) -> str:
+    shown = ", ".join(repr(n) for n in names[:limit])
+    return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")
+
+
+def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str
+                      ) -> DerivativeArrayResult:
+    """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
+    involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
+    new derivatives), assembled into dense matrices for the rank decisions."""
+    rows = [int(i) for i in rows]
+    cols = [int(j) for j in cols]
+    n = len(cols)
+    m = m_all[cols]
     s_ord = np.maximum(m, 1)
     if max_index is None:
         max_index = 2 * n + 2
-    pt = _Point(model, point, seed)
+    eq_names = model.equation_names
     t = model.t
-    controls = model.controls
-    levels = [model.residual]
+    ctrl_top = {var.name: (max(var.ders) if var.ders else 0) for var in model.controls}
+    # columns: (j, r) with s_j <= r <= m_j + k; states (j, r) with r < s_j
+    col_j = [j for j, sj, mj in zip(cols, s_ord, m) for _ in range(sj, mj + 1)]
+    col_r = [r for sj, mj in zip(s_ord, m) for r in range(sj, mj + 1)]
+    target = [r == sj for sj, mj in zip(s_ord, m) for r in range(sj, mj + 1)]
+    state_j = [j for j, sj in zip(cols, s_ord) for _ in range(sj)]
+    state_r = [r for sj in s_ord for r in range(sj)]
+    X_s = model.symbols_at(state_j, state_r)
+    level = model.residual[rows]
+    blocks: list[sp.csr_matrix] = []  # Jacobian rows of each level w.r.t. [columns, states]
     ranks: list[tuple[int, int, int]] = []
     for k in range(max_index + 1):
         if k > 0:
-            # symbols present at level k-1: unknowns up to m_j + k - 1, controls up to k - 1
-            syms, nxt = [], []
-            for j in range(n):
-                for r in range(int(m[j]) + k):
-                    syms.append(model.symbol(j, r))
-                    nxt.append(model.symbol(j, r + 1))
-            for var in controls:
-                top = max(var.ders) if var.ders else 0
-                for r in range(top + 1):
-                    syms.append(var.der(r))
-                    nxt.append(var.der(r + 1))
-            levels.append(_time_derivative(levels[-1], syms, nxt, t))
-        array = ca.vertcat(*levels)
-        unknown_cols, target = [], []
-        for j in range(n):
-            for r in range(int(s_ord[j]), int(m[j]) + k + 1):
-                unknown_cols.append(model.symbol(j, r))
-                target.append(r == s_ord[j])
-        target = np.array(target)
-        jac = pt.jacobian(array, ca.vertcat(*unknown_cols))
+            sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
+            sr = [r for mj in m for r in range(mj + k)]
+            syms = [t, model.symbols_at(sj, sr), model.symbols_at(sj, [r + 1 for r in sr])]
+            v, w = [syms[0], syms[1]], [ca.SX(1), syms[2]]
+            for var in model.controls:
+                for r in range(ctrl_top[var.name] + k):
+                    v.append(var.der(r))
+                    w.append(var.der(r + 1))
+            level = ca.jtimes(level, ca.vertcat(*v), ca.vertcat(*w))
+            col_j += cols
+            col_r += [int(mj) + k for mj in m]
+            target += [int(mj) + k == sj for sj, mj in zip(s_ord, m)]
+        if (k + 1) * len(rows) > ARRAY_LIMIT:
+            raise ModelError(
+                f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
+                f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+                f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
+                "equations are regular (point=...), or check that they determine their "
+                "unknowns at all"
+            )
+        X = model.symbols_at(col_j, col_r)
+        blk = pt.sparse(ca.jacobian(level, ca.vertcat(X, X_s)))
+        _require_finite(blk, lambda r, k=k: _der_eq(eq_names[rows[r]], k))
+        blocks.append(blk)
+        width = len(col_j) + len(state_j)
+        full = sp.vstack([sp.hstack([b[:, : b.shape[1] - len(state_j)],
+                                     sp.csr_matrix((b.shape[0], width - b.shape[1])),
+                                     b[:, b.shape[1] - len(state_j):]]) for b in blocks]).toarray()
+        jac, jac_s = full[:, : len(col_j)], full[:, len(col_j):]
+        tgt = np.array(target)
         r_all, _ = numeric_rank(jac)
-        r_rest, _ = numeric_rank(jac[:, ~target])
+        r_rest, _ = numeric_rank(jac[:, ~tgt])
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
-            state_cols = [model.symbol(j, r) for j in range(n) for r in range(int(s_ord[j]))]
-            jac_s = pt.jacobian(array, ca.vertcat(*state_cols))
-            r_full, _ = numeric_rank(np.hstack([jac, jac_s]))
+            r_full, _ = numeric_rank(np.hstack([jac, jac_s])) if len(state_j) else (r_all, 0)
             constraints = r_full - r_all
-            return DerivativeArrayResult(k, len(state_cols) - constraints, ranks, constraints)
+            return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
+                                         [eq_names[i] for i in rows])
     raise ModelError(
-        f"model {model.name!r}: the derivative array up to level {max_index} does not determine "
-        "all derivatives; the model may be singular (not uniquely solvable) at the test point"
+        f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
+        f"determine all derivatives of the equations {_short([eq_names[i] for i in rows], 6)}; "
+        "the model may be singular (not uniquely solvable) at the test point; try another "
+        "point (point=...)"
     )
 
 
@@ -308,6 +555,15 @@ class Analysis:
     sigma : list of (equation, unknown, order)
         The sparse Sigma matrix by names (highest derivative order of each unknown in each
         equation); :meth:`plot_structure` draws it.
+    singular_blocks : list of list of str
+        Where structural analysis fails: the equations of each singular diagonal block of the
+        system Jacobian (its block triangular form).
+    numeric : DerivativeArrayResult or None
+        Where structural analysis fails: the derivative-array result of the part of the model
+        coupled to the singular blocks (``numeric.equations``).
+    structural_part : (int, int) or None
+        Where structural analysis fails in part of the model only: index and DOF of the rest,
+        from the Sigma-method (trusted there).
     """
 
     model_name: str
@@ -328,6 +584,8 @@ class Analysis:
     input_derivatives: dict[str, int] = field(default_factory=dict)
     definitions: list[str] = field(default_factory=list)
     sigma: list[tuple[str, str, int]] = field(default_factory=list)
+    singular_blocks: list[list[str]] = field(default_factory=list)
+    structural_part: tuple[int, int] | None = None
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
@@ -355,7 +613,8 @@ class Analysis:
 
 
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
-    """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``."""
+    """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
+    :class:`_NonFinite` naming the equations with NaN or inf entries."""
     n = model.n_unknowns
     data = np.zeros(len(rows))
     F = model.residual
@@ -373,36 +632,48 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
         nz = np.asarray(val.nonzeros())
         idx = np.array([pos.get((int(rows[s]), int(cols[s])), -1) for s in sel], dtype=np.int64)
         data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if len(nz) else 0.0, 0.0)
+    bad = ~np.isfinite(data)
+    if np.any(bad):
+        names = model.equation_names
+        raise _NonFinite([names[i] for i in sorted(set(np.asarray(rows)[bad].tolist()))])
     return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
-
-
-def _blockwise_rcond(jac: sp.csr_matrix, row_match) -> float:
-    """Smallest reciprocal condition over the diagonal blocks of the BLT form (0 = singular)."""
-    n = jac.shape[0]
-    coo = jac.tocoo()
-    rcond = 1.0
-    for brows, bcols in block_triangular(n, coo.row, coo.col, row_match):
-        sub = jac[brows][:, bcols]
-        if len(brows) <= DENSE_LIMIT:
-            rank, rc = numeric_rank(sub.toarray())
-            rc = rc if rank == len(brows) else 0.0
-        else:
-            rc = _sparse_rcond(sub)
-            rc = rc if rc > RANK_RTOL * len(brows) else 0.0
-        rcond = min(rcond, rc)
-    return rcond
 
 
 def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
     analysis is trustworthy here, the differential index, the DOF, and the easy test.
 
+    Where Pryce's system Jacobian is singular in some diagonal blocks of its block triangular
+    form, structural analysis has failed there, and the derivative array is computed for the
+    part of the model that needs it: the *connected components* of the Sigma pattern (the
+    bipartite graph linking each equation to every unknown it contains, at any derivative
+    order) that contain an equation of a singular block. Nothing in the other components (the
+    structural part ``S``) involves an unknown of these (the numeric part ``N``), or vice
+    versa: the model is two independent DAEs. Their derivative arrays are independent blocks,
+    so the derivatives are determined at level ``k`` exactly when they are determined in both,
+    and the constraints on the states add up:
+
+        ``index = max(index_S, index_N)``,   ``dof = dof_S + dof_N``.
+
+    On ``S`` the Sigma pattern is block diagonal in the components, so Pryce's canonical
+    offsets restricted to ``S`` are those of ``S`` alone, and ``S``'s system Jacobian (its
+    nonsingular blocks) proves that its structural index and DOF (``sum d - sum c`` over
+    ``S``) are the true ones. (Inputs and parameters do not couple parts: they are given.)
+    A weaker rule -- the singular blocks plus what they depend on and what depends on them --
+    is not sound: a block that uses an unknown also used by a singular block (a common
+    ancestor) would be left out although it is coupled to the numeric part, and the index of a
+    chain of blocks is not the largest of theirs (lecture L2: three blocks of index <= 1,
+    index 3 together).
+    A connected part with more than ``NUMERIC_LIMIT`` equations raises :class:`ModelError`
+    naming the singular equations (rather than minutes of dense linear algebra).
+
     Parameters
     ----------
     model : Model
     point : dict, optional
         Values of variables and derivatives by name (``"p"``, ``"der(p)"``, ``"t"``) at which
-        Jacobians are evaluated; missing values are drawn at random (seeded by ``seed``).
+        Jacobians are evaluated; missing values are drawn at random (seeded by ``seed``;
+        other draws follow where the model is not defined at the first one).
 
     Example
     -------
@@ -420,70 +691,69 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     except NoTransversal:  # validate() guarantees a matching exists; keep a clear message
         raise ModelError(f"model {model.name!r} has no transversal (structurally singular)") from None
     c, d = sig.c, sig.d
-    pt = _Point(model, point, seed)
-    keep = inc.vals == d[inc.cols] - c[inc.rows]
-    jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
     eq_names, var_names = model.equation_names, model.unknown_names
-    coo = jac.tocoo()
-    blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
-    rcond = _blockwise_rcond(jac, sig.transversal)
-    ok = rcond > 0.0
-    numeric = None
-    index, dof = sig.index, sig.dof
-    if not ok:
-        numeric = differential_index(model, point, seed=seed)
-        index, dof = numeric.index, numeric.dof
+    keep = inc.vals == d[inc.cols] - c[inc.rows]
+
+    def work(pt: _Point):
+        jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
+        coo = jac.tocoo()
+        blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
+        checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        rcond = min((ch.rcond for ch in checks), default=1.0)
+        singular = [ch.rows for ch in checks if ch.rank < ch.size]
+        numeric, part = None, None
+        index, dof = sig.index, sig.dof
+        if singular:
+            eq_lab, unk_lab = _components(inc)
+            comps = np.unique(eq_lab[np.concatenate(singular)])
+            numeric = _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "analyze",
+                                    [eq_names[i] for b in singular for i in b])
+            rest_e = ~np.isin(eq_lab, comps)
+            rest_u = ~np.isin(unk_lab, comps)
+            part = (structural_index(c[rest_e], d[rest_u]),
+                    int(d[rest_u].sum() - c[rest_e].sum()))
+            index, dof = max(part[0], numeric.index), part[1] + numeric.dof
+            if not rest_e.any():
+                part = None
+        return jac, blocks_idx, rcond, singular, numeric, part, index, dof, _easy_test(model, pt)
+
+    jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy = _at_finite_point(
+        model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(
         sigma=[(eq_names[i], var_names[j], int(k))
                for i, j, k in zip(inc.rows.tolist(), inc.cols.tolist(), inc.vals.tolist())],
         input_derivatives=_input_derivatives(model, c),
-        definitions=[eq_names[i] for i in _definitions(model, inc, sig)],
+        definitions=[eq_names[i] for i in _definitions(model)],
         model_name=model.name,
         structural_index=sig.index,
         index=index,
         dof=dof,
         structural_dof=sig.dof,
-        structurally_ok=ok,
+        structurally_ok=not singular,
         equation_offsets={eq_names[i]: int(c[i]) for i in range(n)},
         variable_offsets={var_names[j]: int(d[j]) for j in range(n)},
         transversal={eq_names[i]: var_names[int(sig.transversal[i])] for i in range(n)},
         highest_order={var_names[j]: int(highest[j]) for j in range(n)},
         jacobian_rcond=rcond,
         blocks=[([eq_names[i] for i in br], [var_names[j] for j in bc]) for br, bc in blocks_idx],
-        easy=is_index1(model, point, seed),
+        easy=easy,
         numeric=numeric,
         n_inputs=sum(v.size for v in model.controls),
+        singular_blocks=[[eq_names[i] for i in b] for b in singular],
+        structural_part=part,
     )
 
 
-def _definitions(model: Model, inc, sig) -> list[int]:
-    """Equations with c_i >= 1 that are affine with a constant coefficient in a derivative
-    x_j^(k) with k = sigma_ij = d_j - c_i >= 1 (each j used once): explicit definitions such
-    as ``p' = v``, which the reduction eliminates."""
-    c, d = sig.c, sig.d
-    k = d[inc.cols] - c[inc.rows]
-    cand = np.nonzero((c[inc.rows] >= 1) & (k >= 1) & (inc.vals == k))[0]
-    if cand.size == 0:
-        return []
-    rows_u = np.unique(inc.rows[cand])
-    pairs = sorted({(int(inc.cols[e]), int(k[e])) for e in cand})
-    col_of = {p: n for n, p in enumerate(pairs)}
-    row_of = {int(i): n for n, i in enumerate(rows_u)}
-    J = ca.jacobian(model.residual[[int(i) for i in rows_u]],
-                    model.symbols_at([p[0] for p in pairs], [p[1] for p in pairs]))
-    used: set[int] = set()
-    out = []
-    for e in cand[np.argsort(inc.rows[cand], kind="stable")]:
-        i, j = int(inc.rows[e]), int(inc.cols[e])
-        if (out and out[-1] == i) or j in used:
-            continue
-        entry = J[row_of[i], col_of[j, int(k[e])]]
-        if entry.is_constant() and float(ca.evalf(entry)) != 0.0:
-            out.append(i)
-            used.add(j)
-    return out
+def _definitions(model: Model) -> list[int]:
+    """The equations that :func:`daekit.reduce_index` eliminates as explicit definitions of a
+    derivative (``p' = v``): one source of truth, :func:`daekit.reduction.eliminate.
+    find_eliminations` on the offsets' expansion (which also drops cyclic definitions)."""
+    from .reduction.differentiate import expand
+    from .reduction.eliminate import find_eliminations
+
+    return list(find_eliminations(expand(model, validate=False)).equations)
 
 
 def _input_derivatives(model: Model, c: np.ndarray) -> dict[str, int]:
@@ -546,17 +816,7 @@ def _explain(a: Analysis) -> str:
             f"{a.jacobian_rcond:.1e}), so the structural result is the true one."
         )
     else:
-        lines.append(
-            f"Differential index {a.index}, computed NUMERICALLY from the derivative array, "
-            f"because structural analysis FAILS here: the system Jacobian is singular at the test "
-            f"point although the structure admits a matching. Structural analysis claims index "
-            f"{a.structural_index} and {a.structural_dof} degrees of freedom; both are wrong. "
-            "(Typical causes: cancellations such as M*(x1' - x2') appearing in two equations, a "
-            "singular mass matrix, or equations whose sum loses a derivative.)"
-        )
-        if a.numeric is not None:
-            lev = ", ".join(f"level {k}: rank {r} vs {rr} without targets" for k, r, rr in a.numeric.ranks)
-            lines.append(f"  Derivative array ranks ({lev}).")
+        lines.extend(_explain_failure(a))
     lines.append("")
     e = a.easy
     if e.passed:
@@ -654,6 +914,50 @@ def _explain(a: Analysis) -> str:
             "the variables, rewrite the model so that the structure shows the true dependencies."
         )
     return "\n".join(lines)
+
+
+def _explain_failure(a: Analysis) -> list[str]:
+    """The paragraph on a failed structural analysis: where it fails, what was computed
+    instead, and which of the structural numbers are right."""
+    n = len(a.equation_offsets)
+    blocks = "; ".join(", ".join(b) for b in a.singular_blocks) or "?"
+    plural = "s" if len(a.singular_blocks) > 1 else ""
+    where = (f"the system Jacobian is singular at the test point in the diagonal block{plural} "
+             f"of equations {blocks}, although the structure admits a matching")
+    num = a.numeric
+    if a.structural_part is None:
+        text = (f"Differential index {a.index}, computed NUMERICALLY from the derivative array, "
+                f"because structural analysis FAILS here: {where}.")
+    else:
+        k = len(num.equations) if num is not None else 0
+        text = (f"Differential index {a.index}. Structural analysis FAILS in part of the model: "
+                f"{where}. The {k} of {n} equations coupled to {'them' if plural else 'it'} "
+                f"(sharing unknowns) were analyzed NUMERICALLY from the derivative array: index "
+                f"{num.index}, {_dof_words(num.dof)}; the other {n - k} are structurally sound "
+                f"(index {a.structural_part[0]}, {_dof_words(a.structural_part[1])}), and the "
+                "model's index is the larger, its DOF the sum.")
+    idx_ok = a.structural_index == a.index
+    dof_ok = a.structural_dof == a.dof
+    claims = (
+        f"index {a.structural_index}"
+        + (" (right)" if idx_ok else f" (wrong: the true index is {a.index})")
+        + f" and {_dof_words(a.structural_dof)}"
+        + (" (right)" if dof_ok else f" (wrong: the true number is {a.dof})")
+    )
+    text += f" Structural analysis of the whole model claims {claims}"
+    text += ("; the equation offsets of the failing part are not to be trusted." if idx_ok and
+             dof_ok else ".")
+    text += (" (Typical causes: cancellations such as M*(x1' - x2') appearing in two "
+             "equations, a singular mass matrix, or equations whose sum loses a derivative.)")
+    lines = [text]
+    if num is not None and num.ranks:
+        lev = ", ".join(f"level {k}: rank {r} vs {rr} without targets" for k, r, rr in num.ranks)
+        lines.append(f"  Derivative array ranks ({lev}).")
+    return lines
+
+
+def _dof_words(k: int) -> str:
+    return f"{k} degree{'' if k == 1 else 's'} of freedom"
 
 
 def _der_eq(name: str, k: int) -> str:

@@ -234,7 +234,18 @@ class Model:
 
     def parameter(self, name: str, value=0.0) -> ca.SX:
         """Declare a named constant with a default ``value`` (scalar or vector)."""
-        arr = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+        try:
+            arr = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+        except (TypeError, ValueError):
+            raise ModelError(
+                f"model {self.name!r}: parameter {name!r} needs a number or a vector of numbers, "
+                f"got {value!r}"
+            ) from None
+        if value is None or arr.size == 0:
+            raise ModelError(
+                f"model {self.name!r}: parameter {name!r} needs a number or a vector of numbers, "
+                f"got {value!r}"
+            )
         if not np.all(np.isfinite(arr)):
             raise ModelError(f"model {self.name!r}: parameter {name!r} has a non-finite value {value!r}")
         return self._declare(name, "parameter", arr.size, default=arr)
@@ -319,9 +330,20 @@ class Model:
                 "to a CasADi expression; give an SX expression built from the model's symbols, "
                 "a number, or a NumPy array"
             ) from None
-        sx = ca.vec(ca.densify(sx))
         if sx.numel() == 0:
             raise ModelError(f"model {self.name!r}, equation {name!r} is empty")
+        sx = ca.vec(sx)
+        zero = _zero_entries(sx)
+        if zero:
+            els = [name if sx.numel() == 1 else f"{name}[{k}]" for k in zero]
+            shown = ", ".join(els[:8]) + (", ..." if len(els) > 8 else "")
+            raise ModelError(
+                f"model {self.name!r}, equation {name!r}: {shown} "
+                f"{'is' if len(els) == 1 else 'are'} identically zero (a structural zero of a "
+                "sparse matrix, or the constant 0); pass only the entries that are equations "
+                "(e.g. the vector v itself rather than the diagonal matrix ca.diag(v))"
+            )
+        sx = ca.densify(sx)
         tname = self.t.element_hash()
         for s in ca.symvar(sx):
             h = s.element_hash()
@@ -558,11 +580,18 @@ class Model:
             f"{inc.n_unknowns} unknowns, at most {dm.matching_size} can be matched."
         ]
         if over_e:
-            lines.append(
-                f"  Over-determined: the equations {_short(over_e)} involve only the unknowns "
-                f"{_short(over_v)}, too few for them; remove or merge an equation there, or an "
-                "unknown is missing."
-            )
+            if over_v:
+                lines.append(
+                    f"  Over-determined: the equations {_short(over_e)} involve only the unknowns "
+                    f"{_short(over_v)}, too few for them; remove or merge an equation there, or "
+                    "an unknown is missing."
+                )
+            else:
+                lines.append(
+                    f"  Over-determined: the equations {_short(over_e)} involve no unknowns "
+                    "(only time, inputs or parameters): they cannot be solved for anything; "
+                    "remove them, or declare the unknown they should determine."
+                )
         if under_v:
             lines.append(
                 f"  Under-determined: the unknowns {_short(under_v)} appear only in the equations "
@@ -587,6 +616,18 @@ def _short(names: list[str], limit: int = 12) -> str:
     if len(names) <= limit:
         return ", ".join(repr(n) for n in names)
     return ", ".join(repr(n) for n in names[:limit]) + f", ... ({len(names)} in all)"
+
+
+def _zero_entries(sx: ca.SX) -> list[int]:
+    """Positions of a column that are structural zeros or the constant 0."""
+    n = int(sx.numel())
+    row, _ = sx.sparsity().get_triplet()
+    present = np.zeros(n, dtype=bool)
+    present[np.asarray(row, dtype=np.int64)] = True
+    out = set(np.nonzero(~present)[0].tolist())
+    nz = sx.nonzeros()
+    out.update(int(r) for r, e in zip(row, nz, strict=True) if e.is_zero())
+    return sorted(out)
 
 
 def _nonfinite_constants(expr: ca.SX) -> list[float]:

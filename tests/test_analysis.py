@@ -259,3 +259,30 @@ def test_easy_test_blockwise_rank_above_the_dense_limit():
         e = dk.is_index1(m)
         assert (e.rank, e.size, bool(e)) == (k, 2 * k, False)
         assert sorted(e.deficient_equations) == sorted(m.equation_names)
+
+
+def coupled_zero(k, with_c=False):
+    m = dk.Model("coupled_zero")
+    x, w = m.state("x", k), m.state("w")
+    a, b = m.algebraic("a"), m.algebraic("b")
+    c = m.algebraic("c") if with_c else 0
+    m.equation(m.der(x) + x, name="ode")
+    m.equation(m.der(w) + w, name="wdyn")
+    m.equation(w * a + c - 1, name="e1")
+    m.equation(a + w * b, name="e2")
+    if with_c:
+        m.equation(c - x[0], name="e3")
+    return m
+
+
+def test_easy_test_rank_is_exact_when_singular_blocks_couple():
+    # Leading Jacobian w.r.t. (a, b) at w = 0: [[w, 0], [1, w]] = [[0, 0], [1, 0]]: two
+    # singular 1x1 blocks of the BLT form, but rank 1 (not 0); left null vector (1, 0): e1.
+    for k in (10, 130):  # dense path and blockwise path (more than 120 equations)
+        e = dk.is_index1(coupled_zero(k), point={"w": 0.0})
+        assert (e.rank, e.size) == (k + 2, k + 3)
+        assert e.deficient_equations == ["e1"]
+        # e1 also uses c, which the nonsingular block e3 determines: null vector e1 - e3
+        e = dk.is_index1(coupled_zero(k, with_c=True), point={"w": 0.0})
+        assert (e.rank, e.size) == (k + 3, k + 4)
+        assert sorted(e.deficient_equations) == ["e1", "e3"]

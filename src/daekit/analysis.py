@@ -245,11 +245,12 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
 
     The Jacobian is evaluated sparsely. Up to ``EASY_DENSE_LIMIT`` equations its rank comes
     from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the diagonal blocks
-    of its block triangular form: each block's rank deficiency (dense SVD up to
-    ``DENSE_LIMIT`` rows, sparse LU pivots beyond) is summed, and each deficient block names
-    the equations of its left null space. The sum is exact when the deficient blocks do not
-    couple through the off-diagonal part (then ``rank = n - sum``), and otherwise a lower bound
-    of the rank.
+    of its block triangular form (dense SVD up to ``DENSE_LIMIT`` rows, sparse LU pivots
+    beyond). Where some blocks are singular, the rank is that of the nonsingular rest plus the
+    rank of the Schur complement on the singular blocks, and ``deficient_equations`` are the
+    rows of the left null space (see ``_schur_rank``); with more than ``DENSE_LIMIT`` rows in
+    singular blocks the blocks' deficiencies are summed instead (exact when the singular
+    blocks do not couple through off-diagonal entries, else a lower bound of the rank).
 
     Example
     -------
@@ -280,16 +281,81 @@ def _easy_test(model: Model, pt: _Point) -> EasyTest:
         coo = jac.tocoo()
         dm = dulmage_mendelsohn(n, n, coo.row, coo.col)
         if dm.is_square_nonsingular:
-            checks = [_rank_check(jac, br, bc)
-                      for br, bc in block_triangular(n, coo.row, coo.col, dm.row_match)]
-            rank = n - sum(ch.size - ch.rank for ch in checks)
+            blocks = block_triangular(n, coo.row, coo.col, dm.row_match)
+            checks = [_rank_check(jac, br, bc) for br, bc in blocks]
             rcond = min((ch.rcond for ch in checks), default=1.0)
-            names = [eq_names[i] for ch in checks for i in ch.deficient_rows]
+            sing = [(br, bc) for (br, bc), ch in zip(blocks, checks) if ch.rank < ch.size]
+            exact = _schur_rank(jac, sing) if sing else (n, [])
+            if exact is not None:
+                rank, rows = exact
+            else:  # too many singular rows for a dense Schur complement: per-block sum
+                rank = n - sum(ch.size - ch.rank for ch in checks)
+                rows = [i for ch in checks for i in ch.deficient_rows]
+            names = [eq_names[i] for i in rows]
         else:
             rank, rcond = dm.matching_size, 0.0
             names = [eq_names[i] for i in dm.over_rows]
     cond = 1.0 / rcond if rcond > 0 else float("inf")
     return EasyTest(rank == n, rank, n, cond, names)
+
+
+def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
+    """Exact rank and left-null-space rows of a square ``jac`` whose BLT diagonal blocks
+    ``singular`` (rows, cols) are singular and all others nonsingular.
+
+    Without the singular blocks' rows ``S`` and columns, the rest ``J_NN`` is block triangular
+    with nonsingular diagonal blocks, hence invertible, and ``rank J = |N| + rank(J_SS -
+    J_SN J_NN^-1 J_NS)`` (the Schur complement, dense SVD). A left null vector ``(a_N, a_S)``
+    has ``a_S`` in the Schur complement's left null space and ``a_N = -J_NN^-T J_SN^T a_S``.
+    (Summing the blocks' deficiencies alone overstates the deficiency where off-diagonal
+    entries couple singular blocks.) None when ``|S| > DENSE_LIMIT``.
+    """
+    n = jac.shape[0]
+    s_rows = [int(i) for br, _ in singular for i in br]
+    s_cols = [int(j) for _, bc in singular for j in bc]
+    if len(s_rows) > DENSE_LIMIT:
+        return None
+    in_s = np.zeros(n, bool)
+    in_s[s_rows] = True
+    n_rows = np.nonzero(~in_s)[0]
+    in_sc = np.zeros(n, bool)
+    in_sc[s_cols] = True
+    n_cols = np.nonzero(~in_sc)[0]
+    jac = sp.csr_matrix(jac)
+    j_ss = jac[s_rows][:, s_cols].toarray()
+    if len(n_rows):
+        try:
+            lu = spla.splu(sp.csc_matrix(jac[n_rows][:, n_cols]), permc_spec="COLAMD")
+        except RuntimeError:  # J_NN numerically singular after all: keep the per-block sum
+            return None
+        j_sn = jac[s_rows][:, n_cols]
+        x = lu.solve(jac[n_rows][:, s_cols].toarray())
+        schur = j_ss - j_sn @ x
+    else:
+        schur = j_ss
+    u, sv, _ = np.linalg.svd(_equilibrate(schur))
+    m = len(s_rows)
+    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
+    rank_s = int(np.sum(sv > tol))
+    if rank_s == m:
+        return n, []
+    # left null vectors of the equilibrated Schur complement -> of the Schur complement
+    a_s = u[:, rank_s:] * _row_scale(schur)[:, None]
+    weight = np.zeros(n)
+    weight[s_rows] = np.linalg.norm(a_s, axis=1)
+    if len(n_rows):
+        a_n = -lu.solve(np.asarray(j_sn.T @ a_s), trans="T")
+        weight[n_rows] = np.linalg.norm(a_n, axis=1)
+    rows = np.nonzero(weight > 1e-8 * weight.max())[0].tolist()
+    return len(n_rows) + rank_s, rows
+
+
+def _row_scale(a: np.ndarray) -> np.ndarray:
+    """The row factors of :func:`_equilibrate` (a left null vector ``w`` of the equilibrated
+    matrix ``R A C`` gives ``R w`` for ``A``)."""
+    mx = np.max(np.abs(a), axis=1)
+    r = np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
+    return r
 
 
 @dataclass

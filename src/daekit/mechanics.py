@@ -153,7 +153,10 @@ class LagrangianSystem:
       ``[c; G q']`` named ``"rod"``/``"d/dt rod"`` (or ``"c[0]"``/``"d/dt c[0]"``).
       ``q''`` stays an algebraic unknown (rather than being eliminated by solving the linear
       system symbolically), which keeps the expressions sparse; ``d alg / d(q'', z)`` is the
-      KKT matrix ``[M G^T; G 0]``. ``r.info["lagrangian"]`` is this object.
+      KKT matrix ``[M G^T; G 0]``. ``r.info["lagrangian"]`` is this object;
+      ``r.info["chains"]`` and ``r.info["alg_names"]`` are filled as by
+      :func:`daekit.reduce_index`, so :func:`daekit.baumgarte`, :func:`daekit.ggl` and
+      ``daekit.simulate(..., stabilization="baumgarte")`` work on the result.
     - For RATTLE and other structure-exploiting integrators, CasADi Functions (the symbolic
       arguments are named; ``p`` is the parameter vector in declaration order, ``u`` the inputs):
 
@@ -478,6 +481,17 @@ class LagrangianSystem:
         z_names = a_names + mult_names
         variables = {nm: x[i] for i, nm in enumerate(x_names)}
         variables.update({nm: z[i] for i, nm in enumerate(z_names)})
+        # invariant chains as reduce_index gives them (what baumgarte and ggl read): constraint
+        # element j is the model's equation element n + j, its invariants c_j (row j) and
+        # dc_j/dt (row m + j), its top equation c_j'' the algebraic row n + j
+        n, m = self.n, self.m
+        chains = [
+            {"equation": nm, "row": n + j, "invariants": [j, m + j], "alg": n + j}
+            for j, nm in enumerate(self._cnames)
+        ]
+        alg_names = [element_name(self.equation_name, n, i) for i in range(n)] + [
+            f"d2/dt2 {nm}" for nm in self._cnames
+        ]
         return ReducedDAE(
             t=s["t"],
             x=x,
@@ -499,7 +513,8 @@ class LagrangianSystem:
             state_selection=None,
             method="lagrangian",
             model=mdl,
-            info={"lagrangian": self, "mass_matrix": self.mass_matrix},
+            info={"lagrangian": self, "mass_matrix": self.mass_matrix, "chains": chains,
+                  "alg_names": alg_names, "amendments": []},
         )
 
     # ------------------------------------------------------------------ functions

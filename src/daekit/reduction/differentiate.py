@@ -114,6 +114,9 @@ class Expansion:
     equation_names: list[str]
     unknown_names: list[str]
     pos: list[np.ndarray] = field(default_factory=list)  # pos[k][i] = row of i in levels[k]
+    # transversal[i]: the unknown matched to equation i (Pryce's highest-value transversal; it
+    # lies on the pattern of the system Jacobian, so it orders that matrix block triangularly)
+    transversal: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n(self) -> int:
@@ -148,7 +151,7 @@ def expand(model: Model, validate: bool = True) -> Expansion:
 
     One ``casadi.jtimes`` call per differentiation level, over all equations of that level.
     """
-    _, c, d = sigma_offsets(model, validate)
+    transversal, c, d = sigma_offsets(model, validate)
     unknowns = model.unknowns
     n = len(unknowns)
     F = model.residual
@@ -207,4 +210,5 @@ def expand(model: Model, validate: bool = True) -> Expansion:
         equation_names=model.equation_names,
         unknown_names=model.unknown_names,
         pos=pos,
+        transversal=np.asarray(transversal, dtype=np.int64),
     )

@@ -61,6 +61,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..analysis import RANK_RTOL
 from ..errors import ReductionError
 from ..model import Model
 from ..reduced import ReducedDAE
@@ -71,6 +72,7 @@ from .reduce import (
     _assemble,
     _invariants,
     _pair_names,
+    _scales,
     _states,
     _to_scipy,
     _top_equations,
@@ -88,12 +90,22 @@ def _point_vector(ex, point: Mapping | None, seed: int):
     vals: dict[tuple[int, int, int], float] = {}
     t = 0.0
     if point:
+        if not isinstance(point, Mapping):
+            raise ReductionError(
+                f"model {model.name!r}: point must be a dict of values by name "
+                f"({{'x': 1.0, 'der(x)': 0.0}}), got {type(point).__name__}"
+            )
         for name, value in point.items():
             if name == "t":
-                t = float(value)
+                try:
+                    t = float(value)
+                except (TypeError, ValueError):
+                    raise ReductionError(
+                        f"model {model.name!r}: point['t'] must be one number, got {value!r}"
+                    ) from None
                 continue
             els = model.resolve(name)
-            arr = np.broadcast_to(np.asarray(value, dtype=float).ravel(), (len(els),))
+            arr = _point_entry(model, name, value, len(els))
             for (var, i, order), a in zip(els, arr, strict=True):
                 vals[id(var), i, order] = float(a)
 
@@ -114,6 +126,26 @@ def _point_vector(ex, point: Mapping | None, seed: int):
         for i in range(var.size):
             P.append(get(var, i, 0, float(var.default[i])))
     return t, np.asarray(X), np.asarray(U), np.asarray(P)
+
+
+def _point_entry(model, name: str, value, size: int) -> np.ndarray:
+    """``point[name]`` as ``size`` floats (one number is broadcast); a ReductionError naming
+    the entry and the expected size otherwise."""
+    try:
+        arr = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise ReductionError(
+            f"model {model.name!r}: point[{name!r}] must be numbers ({size} value(s) for "
+            f"{name!r}), got {value!r}"
+        ) from None
+    if arr.size == 1:
+        return np.full(size, float(arr[0]))
+    if arr.size != size:
+        raise ReductionError(
+            f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
+            f"{size} element(s); give {size} numbers (or one number for all)"
+        )
+    return arr
 
 
 _DENSE_STAGE = 400  # stages with more equations are split into blocks
@@ -257,16 +289,45 @@ def _condition_estimate(J: sp.csr_matrix, R, C, S) -> float:
     return float(abs(A).sum(axis=0).max() * spla.onenormest(inv))
 
 
+def _deficient_rows(A: np.ndarray, which: bool = True):
+    """Positions of the rows of the wide matrix ``A`` in a rank deficiency (its left null
+    space; all rows when ``which`` is False), or None when ``A`` has full row rank. Judged
+    after row and column equilibration by powers of two, with the tolerance of
+    :func:`daekit.analysis.numeric_rank` (``RANK_RTOL * max(shape) * sigma_max``), so badly
+    scaled rows are not taken for dependent ones."""
+    m = A.shape[0]
+    if m == 0:
+        return None
+    if not np.all(np.isfinite(A)):
+        return np.arange(m)
+    dr, dc = _scales(A)
+    Ae = A * dr[:, None] * dc[None, :]
+    s = np.linalg.svd(Ae, compute_uv=False)
+    tol = RANK_RTOL * max(A.shape) * s[0] if s.size and s[0] > 0 else np.inf
+    rank = int(np.sum(s > tol))
+    if rank == m:
+        return None
+    if not which:
+        return np.arange(m)
+    U = np.linalg.svd(Ae, full_matrices=False)[0]  # m x m: A is wide
+    w = np.linalg.norm(U[:, rank:], axis=1)
+    return np.nonzero(w > 1e-8 * w.max())[0]
+
+
 def _select_stage(J: sp.csr_matrix, R: np.ndarray, C: np.ndarray):
-    """Selection for one stage: ``[(rows, candidates, chosen positions, condition)]`` or None
-    when the equations cannot be solved for any choice (numerically singular).
+    """Selection for one stage: ``([(rows, candidates, chosen positions, condition)], None)``,
+    or ``(None, rows)`` when the equations cannot be solved for any choice (numerically
+    singular), with ``rows`` the equations (global indices) at fault: the singular block's
+    rows, or the rows in the left null space of the stage matrix.
 
     Up to ``_DENSE_STAGE`` equations: one dense QR with column pivoting of ``J[R, C]``. Bigger
     stages: per block of :func:`_stage_blocks`, dense QR of each block; if a block turns out
-    singular at the point, the whole stage is done densely after all.
+    singular at the point, the whole stage is done densely after all, and when that fails
+    too, the block is the one reported.
     """
     if len(R) > len(C):
-        return None
+        return None, R
+    failed = None
     if len(R) > _DENSE_STAGE:
         blocks = _stage_blocks(J, R, C)
         out = []
@@ -275,16 +336,18 @@ def _select_stage(J: sp.csr_matrix, R: np.ndarray, C: np.ndarray):
             cols, cond = _select(Ab, len(Rb)) if len(Cb) > len(Rb) else (
                 np.arange(len(Cb)), _block_condition(Ab, np.arange(len(Cb))))
             if not np.isfinite(cond) or cond > 1e12:
+                failed = Rb
                 break
             out.append((Rb, Cb, cols, cond))
         else:
             if blocks is not None:
-                return out
+                return out, None
     A = _dense(J, R, C)
-    if np.linalg.matrix_rank(A) < len(R):
-        return None
+    bad = _deficient_rows(A, which=failed is None)
+    if bad is not None:
+        return None, (failed if failed is not None else R[bad])
     cols, cond = _select(A, len(R))
-    return [(R, C, cols, cond)]
+    return [(R, C, cols, cond)], None
 
 
 def dummy_derivatives(
@@ -340,12 +403,14 @@ def dummy_derivatives(
     for s in range(1, int(c.max(initial=0)) + 1):
         R = np.nonzero(c >= s)[0]
         C = selected[d[selected] >= s]
-        chosen = _select_stage(J, R, C)
+        chosen, bad_rows = _select_stage(J, R, C)
         if chosen is None:
-            bad = [derivative_name(eq_names[i], int(c[i]) - s) for i in R]
+            bad = [derivative_name(eq_names[i], int(c[i]) - s) for i in bad_rows]
+            shown = ", ".join(repr(b) for b in bad[:12]) + (
+                f" ... ({len(bad)} equations)" if len(bad) > 12 else "")
             raise ReductionError(
                 f"model {model.name!r}: dummy-derivative selection failed at stage {s}: the "
-                f"equations {bad[:12]} cannot be solved for any choice of derivatives at the "
+                f"equations {shown} cannot be solved for any choice of derivatives at the "
                 "selection point (the system Jacobian is singular there); give another point "
                 "(point={...}) or use method='differentiate'"
             )
@@ -419,13 +484,35 @@ def selection_condition(r: ReducedDAE, x, z, u=None, p=None, t: float = 0.0) -> 
         raise ReductionError(
             "selection_condition needs a ReducedDAE made with method='dummy_derivatives'"
         )
-    u = np.zeros(r.nu) if u is None else np.asarray(u, dtype=float)
-    p = r.p_values if p is None else np.asarray(p, dtype=float)
+    x = _sized(x, r.nx, "x", r.x_names)
+    z = _sized(z, r.nz, "z", r.z_names)
+    u = np.zeros(r.nu) if u is None else _sized(u, r.nu, "u", r.u_names)
+    p = r.p_values if p is None else _sized(p, r.n_p, "p", r.p_names)
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        raise ReductionError(f"selection_condition: t must be one number, got {t!r}") from None
     J = _to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
     worst = 1.0
     for R, C, cols in r.info["selection_blocks"]:
         worst = max(worst, _block_condition(_dense(J, R, C), cols))
     return worst
+
+
+def _sized(value, size: int, what: str, names) -> np.ndarray:
+    """``value`` as ``size`` floats; a ReductionError naming the argument otherwise."""
+    try:
+        arr = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.size != size:
+        got = "not numbers" if arr is None else f"{arr.size} values"
+        shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+        raise ReductionError(
+            f"selection_condition: {what} must be {size} numbers in the order of r.{what}_names "
+            f"({shown}); got {got}"
+        )
+    return arr
 
 
 def _named_values(r: ReducedDAE, x, z) -> dict[str, float]:

@@ -48,6 +48,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..analysis import RANK_RTOL
 from ..errors import ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
@@ -166,40 +167,130 @@ def _all_symbols(ex: Expansion):
 
 
 def _left_null(ex: Expansion, seed: int):
-    """None if Pryce's system Jacobian is nonsingular at a random point; else a canonical basis
-    (rows, reduced echelon form on pivot columns chosen at the first point) of its left null
-    space at two random points (dense; small systems only)."""
+    """Constant left null vectors of Pryce's system Jacobian ``J``, found numerically.
+
+    ``None`` when ``J`` is nonsingular at a random point. ``False`` when it is singular but no
+    usable null vector was found (a singular block too big for a dense SVD, an ill-conditioned
+    basis, a block that is singular at one point only). Otherwise ``(bases, dr, rows)``: two bases
+    (``k x n`` arrays, reduced echelon form on pivot columns chosen at the first point) of the
+    left null space at two random points, which the caller compares (constant vectors only),
+    the row scaling ``dr`` of ``J`` (entry ``u_i`` matters relative to ``1 / dr_i``) and the
+    rows of the singular block.
+
+    Sparse throughout: ``J`` is put in block lower triangular form (the transversal gives the
+    matching), and the null vector is looked for in the first singular diagonal block only,
+    which is tiny in practice (a Gear--Petzold pair inside a 1000-equation chain is a 2-by-2
+    block). Its rows get the left null vectors of the block; the rows of earlier blocks follow
+    by one sparse solve with the (nonsingular) earlier part, ``J[R<, C<]^T u< = -J[Rk, C<]^T uk``;
+    later blocks do not take part (their rows use columns of later blocks only through the
+    triangular structure). Singularity is judged after row and column equilibration by powers
+    of two, with the relative tolerance :data:`daekit.analysis.RANK_RTOL` ``* size *
+    sigma_max`` (so ``1e-12 x' + x = 0`` is an ODE, not a singular system).
+    """
     n = ex.n
+    if n == 0:
+        return None
     top = _top_equations(ex)
     hi = ex.unknown(ex.d, range(n))
     X, U = _all_symbols(ex)
     p = ex.model.parameter_symbols
-    f = ca.Function("J", [ex.model.t, X, U, p], [ca.densify(ca.jacobian(top, hi))])
+    Jsym = ca.jacobian(top, hi)
+    f = ca.Function("J", [ex.model.t, X, U, p], [Jsym])
+    pr, pc = Jsym.sparsity().get_triplet()
+    tv = np.asarray(ex.transversal, dtype=np.int64)
+    if tv.size != n:  # no transversal kept: a maximum matching of the pattern
+        dm = dulmage_mendelsohn(n, n, pr, pc)
+        if not dm.is_square_nonsingular:
+            return False
+        tv = np.asarray(dm.row_match, dtype=np.int64)
+    blocks = block_triangular(n, np.r_[np.asarray(pr, int), np.arange(n)],
+                              np.r_[np.asarray(pc, int), tv], tv)
     rng = np.random.default_rng(seed + 17)
-    bases, piv = [], None
+    bases, piv, where = [], None, None
     for _ in range(4):
-        J = np.asarray(f(rng.uniform(0.1, 1.0), rng.uniform(0.2, 1.2, X.numel()),
-                         rng.uniform(0.2, 1.2, U.numel()), ex.model.parameter_values))
-        if not np.all(np.isfinite(J)):
+        A = _to_scipy(ca.DM(f(rng.uniform(0.1, 1.0), rng.uniform(0.2, 1.2, X.numel()),
+                              rng.uniform(0.2, 1.2, U.numel()), ex.model.parameter_values)))
+        if not np.all(np.isfinite(A.data)):
             continue
-        if _lu_nonsingular(sp.csc_matrix(J)):
+        if _lu_nonsingular(A):
             return None
-        Uv, sv, _ = np.linalg.svd(J)
-        tol = 1e-10 * max(sv[0], 1.0)
-        k = int(np.sum(sv <= tol))
-        if k == 0:
-            return None
-        N = Uv[:, n - k :].T  # k x n, rows span the left null space
+        A = A.tocsr()
+        dr, _ = _scales(A)
+        if where is None:
+            for b, (rows, cols) in enumerate(blocks):
+                W = _block_left_null(A, rows, cols)
+                if W is None:
+                    continue
+                where = b
+                break
+            else:
+                return None  # every diagonal block is nonsingular
+        else:
+            W = _block_left_null(A, *blocks[where])
+        if W is None or (isinstance(W, str)):
+            return False  # too big for a dense SVD, or not singular at the other point
+        Nf = _extend_left_null(A, blocks, where, W)
+        if Nf is None:
+            return False
+        k = Nf.shape[0]
         if piv is None:
-            _, _, pv = sla.qr(N, mode="economic", pivoting=True)
+            _, _, pv = sla.qr(Nf / dr[None, :], mode="economic", pivoting=True)
             piv = np.sort(pv[:k])
-        B = N[:, piv]
+        B = Nf[:, piv]
         if np.linalg.cond(B) > 1e8:
-            return [None]
-        bases.append(np.linalg.solve(B, N))
+            return False
+        basis = np.linalg.solve(B, Nf)
+        bases.append((basis, dr))
         if len(bases) == 2:
             break
-    return bases if bases else None
+    if len(bases) < 2:
+        return None if not bases else False
+    return [b for b, _ in bases], bases[0][1], [int(i) for i in blocks[where][0]]
+
+
+def _block_left_null(A: sp.csr_matrix, rows, cols):
+    """Left null vectors (rows of a ``k x len(rows)`` array) of the square block
+    ``A[rows, cols]``, or None when the block is nonsingular; ``"big"`` when it is singular
+    but too big for a dense SVD."""
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    Bs = A[rows][:, cols]
+    if len(rows) > _DENSE_LIMIT:
+        return None if _lu_nonsingular(Bs) else "big"
+    B = Bs.toarray()
+    dr, dc = _scales(B)
+    Be = B * dr[:, None] * dc[None, :]
+    Uv, sv, _ = np.linalg.svd(Be)
+    m = len(rows)
+    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
+    k = int(np.sum(sv <= tol))
+    if k == 0:
+        return None
+    # u^T B = 0  <=>  (u / dr)^T Be = 0: u = dr * w for w in the left null space of Be
+    return Uv[:, m - k :].T * dr[None, :]
+
+
+def _extend_left_null(A: sp.csr_matrix, blocks, k: int, W: np.ndarray):
+    """Full left null vectors ``u`` (``W.shape[0] x n``) from those ``W`` of diagonal block
+    ``k`` (earlier blocks nonsingular): ``u`` is ``W`` on the rows of block ``k``, zero on later
+    blocks, and solves ``J[R<, C<]^T u< = -J[Rk, C<]^T uk`` on the earlier ones."""
+    n = A.shape[0]
+    rows_k = np.asarray(blocks[k][0])
+    out = np.zeros((W.shape[0], n))
+    out[:, rows_k] = W
+    if k == 0:
+        return out
+    R = np.concatenate([np.asarray(b[0]) for b in blocks[:k]])
+    C = np.concatenate([np.asarray(b[1]) for b in blocks[:k]])
+    rhs = -(A[rows_k][:, C].T @ W.T)  # len(C) x kdim
+    if not np.any(rhs):
+        return out
+    try:
+        lu = spla.splu(sp.csc_matrix(A[R][:, C].T))
+    except RuntimeError:
+        return None
+    sol = lu.solve(np.asarray(rhs, dtype=float))
+    out[:, R] = np.asarray(sol).reshape(len(R), -1).T
+    return out
 
 
 def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
@@ -207,11 +298,14 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
 
     Linear-combination method (Tan, Nedialkov & Pryce, "Symbolic-numeric methods for improving
     structural analysis of DAEs", 2017): where ``u^T J = 0`` for a *constant* vector ``u``
-    (found numerically at two random points), take ``theta = min c_i`` over ``u_i != 0`` and an
-    equation ``l`` there with ``c_l = theta``, and replace ``F_l`` by
-    ``sum_i u_i F_i^(c_i - theta)``: the leading derivatives cancel, the Sigma-method runs again.
-    Repeated until ``J`` is nonsingular. Non-constant null vectors (and systems with more than
-    400 equations) are left alone; the index-1 check then reports the failure.
+    (found numerically at two random points, in the first singular block of the block
+    triangular form of ``J``, see :func:`_left_null`), take ``theta = min c_i`` over
+    ``u_i != 0`` and an equation ``l`` there with ``c_l = theta``, and replace ``F_l`` by
+    ``sum_i u_i F_i^(c_i - theta)``: the leading derivatives cancel, the Sigma-method runs
+    again. Before the replacement, the cancellation is verified on the expressions themselves
+    (symbolically, else at random points, relative to the size of the terms), so a badly
+    scaled but regular model is never changed. Repeated until ``J`` is nonsingular.
+    Non-constant null vectors are left alone; the index-1 check then reports the failure.
 
     Returns the expansion and a list of plain-language notes on the replaced equations.
     """
@@ -224,35 +318,35 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
     notes: list[str] = []
     work = model
     for _ in range(max_rounds):
-        if ex.n > _DENSE_LIMIT:
-            break
-        nulls = _left_null(ex, seed)
-        if nulls is None:
-            break
-        if (
-            len(nulls) < 2
-            or any(u is None for u in nulls)
-            or nulls[0].shape != nulls[1].shape
-            or not np.allclose(nulls[0], nulls[1], rtol=1e-8, atol=1e-10)
-        ):
+        found = _left_null(ex, seed)
+        if not found:
+            break  # nonsingular (None) or not amendable (False): the index-1 check reports
+        (n0, n1), dr, block_rows = found
+        big = max(float(np.max(np.abs(n0))), 1e-300)
+        if n0.shape != n1.shape or not np.allclose(n0, n1, rtol=1e-8, atol=1e-10 * big):
             break  # not a constant combination: reported by the index-1 check
-        u = nulls[0][0]
-        I = np.nonzero(np.abs(u) > 1e-10)[0]
+        u = n0[0]
+        w = np.abs(u) / dr  # the weights in equilibrated rows: which equations take part
+        I = np.nonzero(w > 1e-10 * w.max())[0]
         theta = int(ex.c[I].min())
-        l = int(I[np.argmin(ex.c[I])])
+        # the equation replaced: offset theta, from the singular block where possible
+        cand = [int(i) for i in I if ex.c[i] == theta]
+        l = next((i for i in cand if i in set(block_rows)), cand[0])
         F = work.residual
-        comb = 0
-        terms = []
+        parts, terms = [], []
         for i in I:
             k = int(ex.c[i]) - theta
-            coef = float(np.round(u[i], 12))
-            comb = comb + coef * time_derivative(F[int(i)], work, k)
+            coef = float(f"{u[i]:.12g}")  # 12 significant digits: -0.99999999999998 -> -1
+            parts.append(coef * time_derivative(F[int(i)], work, k))
             terms.append(f"{coef:+g}*{derivative_name(ex.equation_names[i], k)}")
-        # u^T J = 0 identically: the combination does not depend on the derivatives
-        # x_j^(d_j - theta); remove them (SX keeps cancelled terms like a - a symbolically)
         lead = [j for j in range(ex.n) if ex.d[j] >= theta]
         lead_syms = ex.unknown(ex.d - theta, lead)
-        comb = ca.substitute(ca.SX(comb), lead_syms, ca.SX.zeros(lead_syms.shape))
+        parts = ca.vertcat(*parts)
+        if not _cancels(parts, lead_syms, work, seed):
+            break  # the combination keeps its leading derivatives: reported by the check
+        # u^T J = 0 identically: the combination does not depend on the derivatives
+        # x_j^(d_j - theta); remove them (SX keeps cancelled terms like a - a symbolically)
+        comb = ca.substitute(ca.sum1(parts), lead_syms, ca.SX.zeros(lead_syms.shape))
         names = ex.equation_names
         new_eqs = [Equation(names[i], F[i]) for i in range(ex.n)]
         new_eqs[l] = Equation(names[l], ca.SX(comb))
@@ -267,6 +361,34 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
         ex = expand(work, validate=False)
         ex.model = model
     return ex, notes
+
+
+def _cancels(parts: ca.SX, lead: ca.SX, model: Model, seed: int, rtol: float = 1e-8) -> bool:
+    """Whether ``sum(parts)`` is free of the symbols ``lead``: ``d sum / d lead`` is zero
+    symbolically, or at three random points (parameters at their values) it is below ``rtol``
+    times the size of the individual terms ``|d parts_i / d lead|`` (scale-free)."""
+    Jp = ca.jacobian(parts, lead)
+    total = ca.sum1(Jp)
+    if total.nnz() == 0 or ca.simplify(total).is_zero():
+        return True
+    p = model.parameter_symbols
+    if p.numel():
+        Jp = ca.substitute(Jp, p, ca.DM(model.parameter_values))
+    syms = ca.symvar(Jp)
+    V = ca.vertcat(*syms) if syms else ca.SX(0, 1)
+    f = ca.Function("cancel", [V], [ca.densify(Jp)])
+    rng = np.random.default_rng(seed + 29)
+    checked = 0
+    for _ in range(6):
+        M = np.asarray(f(rng.uniform(0.2, 1.2, V.numel())), dtype=float)
+        if not np.all(np.isfinite(M)):
+            continue
+        if np.any(np.abs(M.sum(axis=0)) > rtol * np.abs(M).sum(axis=0)):
+            return False
+        checked += 1
+        if checked == 3:
+            return True
+    return False
 
 
 # ---------------------------------------------------------------------------- building blocks
@@ -428,20 +550,55 @@ def _to_scipy(M: ca.DM) -> sp.csc_matrix:
     )
 
 
-def _lu_nonsingular(A: sp.csc_matrix) -> bool:
-    """Cheap test: sparse LU with pivots not tiny relative to the largest (no dense SVD)."""
+def _scales(A) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column scale factors (powers of two) that equilibrate ``A`` (dense or sparse):
+    rows first, then columns, as :func:`daekit.analysis.numeric_rank` does. The equilibrated
+    matrix is ``diag(dr) A diag(dc)``; zero rows and columns get factor 1."""
+
+    def pow2(mx):
+        mx = np.asarray(mx, dtype=float).ravel()
+        with np.errstate(divide="ignore"):
+            return np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
+
+    if sp.issparse(A):
+        A = sp.csr_matrix(A)
+        absA = abs(A)
+        dr = pow2(absA.max(axis=1).toarray())
+        dc = pow2((sp.diags(dr) @ absA).max(axis=0).toarray())
+    else:
+        absA = np.abs(np.asarray(A, dtype=float))
+        if absA.size == 0:
+            return np.ones(absA.shape[0]), np.ones(absA.shape[1])
+        dr = pow2(absA.max(axis=1))
+        dc = pow2((absA * dr[:, None]).max(axis=0))
+    return dr, dc
+
+
+def _equilibrated(A: sp.spmatrix) -> sp.csc_matrix:
+    dr, dc = _scales(A)
+    return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
+
+
+def _lu_nonsingular(A: sp.spmatrix) -> bool:
+    """Cheap test (no dense SVD): sparse LU of the equilibrated matrix, every pivot above
+    ``RANK_RTOL * n`` times the largest."""
+    n = A.shape[0]
+    if n == 0:
+        return True
     try:
-        lu = spla.splu(sp.csc_matrix(A))
+        lu = spla.splu(_equilibrated(A))
     except RuntimeError:  # exactly singular
         return False
     u = np.abs(lu.U.diagonal())
-    return bool(u.size == 0 or u.min() > 1e-10 * max(u.max(), 1.0))
+    return bool(u.size == 0 or (u.max() > 0 and u.min() > RANK_RTOL * n * u.max()))
 
 
 def _singular_rows(A: sp.csc_matrix):
     """Rows taking part in a (numerical) rank deficiency of square A, or None if nonsingular.
 
-    Small matrices: SVD. Big ones: block triangular form of the pattern, then SVD per block.
+    Small matrices: SVD. Big ones: block triangular form of the pattern, then per block a
+    sparse LU and, where that finds the block singular, a dense SVD. Always after
+    equilibration (:func:`_scales`).
     """
     n = A.shape[0]
     if n == 0 or _lu_nonsingular(A):
@@ -454,20 +611,29 @@ def _singular_rows(A: sp.csc_matrix):
         return sorted(set(dm.over_rows) | set(dm.under_rows))
     A = A.tocsr()
     for rows, cols in block_triangular(n, coo.row, coo.col, dm.row_match):
-        blk = A[rows][:, cols].toarray()
-        bad = _dense_singular_rows(blk, np.asarray(rows))
+        blk = A[rows][:, cols]
+        if _lu_nonsingular(blk):
+            continue
+        if len(rows) > 4 * _DENSE_LIMIT:
+            return sorted(int(i) for i in rows)  # too big to say more
+        bad = _dense_singular_rows(blk.toarray(), np.asarray(rows))
         if bad is not None:
             return bad
     return None
 
 
 def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
-    if not np.all(np.isfinite(M)):
+    """Rows of ``M`` (named by ``rows``) in its left null space after equilibration, or None
+    when ``M`` is nonsingular (smallest singular value above ``RANK_RTOL * n * sigma_max``)."""
+    if not np.all(np.isfinite(M)) or M.size == 0:
         return None
-    U, s, _ = np.linalg.svd(M)
-    if s.size == 0 or s[-1] > 1e-10 * max(s[0], 1.0):
+    dr, dc = _scales(M)
+    U, s, _ = np.linalg.svd(M * dr[:, None] * dc[None, :])
+    tol = RANK_RTOL * M.shape[0] * s[0] if s[0] > 0 else np.inf
+    rank = int(np.sum(s > tol))
+    if rank == M.shape[0]:
         return None
-    w = np.abs(U[:, -1])
+    w = np.linalg.norm(U[:, rank:], axis=1)
     return sorted(rows[w > 1e-6 * w.max()].tolist())
 
 

@@ -34,10 +34,28 @@ class BaumgarteStiffnessWarning(UserWarning):
     """Baumgarte poles far faster than the model's own dynamics: the system becomes stiff."""
 
 
+def _poles(poles) -> np.ndarray:
+    """The poles as a 1-D complex array; a ReductionError saying what is expected otherwise."""
+    if isinstance(poles, (str, bytes)):
+        arr = None
+    else:
+        try:
+            arr = np.asarray(poles, dtype=complex)
+        except (TypeError, ValueError):
+            arr = None
+    if arr is None or arr.ndim > 1:
+        raise ReductionError(
+            f"baumgarte: poles must be a number or a sequence of numbers (one per "
+            f"derivative level of the longest invariant chain, e.g. poles=(-1.0, -1.0)), "
+            f"got {poles!r}"
+        )
+    return np.atleast_1d(arr)
+
+
 def _chain_coefficients(poles, m: int) -> np.ndarray:
     """``[a_0, ..., a_(m-1)]`` of ``prod (s - pole)`` over the first ``m`` poles (the last pole
     repeated if fewer are given)."""
-    ps = list(np.atleast_1d(np.asarray(poles, dtype=complex)))
+    ps = list(_poles(poles))
     if not ps:
         raise ReductionError("baumgarte: give at least one pole, e.g. poles=(-1.0, -1.0)")
     if not all(np.isfinite(p) for p in ps):
@@ -101,7 +119,8 @@ def baumgarte(
     Parameters
     ----------
     r : ReducedDAE
-        From ``reduce_index(model)`` (method ``"differentiate"``).
+        From ``reduce_index(model)`` (method ``"differentiate"``) or
+        :meth:`daekit.mechanics.LagrangianSystem.index1`.
     poles : sequence of float (complex in conjugate pairs)
         Roots of ``s^m + a_(m-1) s^(m-1) + ... + a_0`` (negative: drift decays). A chain of
         length ``m`` uses the first ``m`` poles (the last one repeated when fewer are given):
@@ -139,6 +158,7 @@ def baumgarte(
             "baumgarte: this ReducedDAE carries no invariant chains (r.info['chains']); make it "
             "with daekit.reduce_index(model)"
         )
+    _chain_coefficients(poles, 1)  # validate the poles even without chains
     inv_rows, alg_rows, vals, coeffs = [], [], [], {}
     for ch in chains:
         m = len(ch["invariants"])
@@ -153,7 +173,7 @@ def baumgarte(
     if vals:
         W = ca.DM(ca.Sparsity.triplet(r.nz, len(r.invariant_names), alg_rows, inv_rows), vals)
         out.alg = r.alg + ca.mtimes(W, r.invariants)
-    fastest = float(np.max(np.abs(np.asarray(poles, dtype=complex))))
+    fastest = float(np.max(np.abs(_poles(poles))))
     rate = time_scale(r, x, z)
     if rate is not None and fastest > warn_ratio * max(rate, 1e-12):
         warnings.warn(
@@ -192,10 +212,11 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     """
     chains = r.info.get("chains") or []
     pos = [ch for ch in chains if len(ch["invariants"]) == 2]
-    if r.method != "differentiate" or not pos:
+    if r.method not in ("differentiate", "lagrangian") or not pos:
         raise ReductionError(
-            "ggl: needs a ReducedDAE from reduce_index(model) (method='differentiate') with "
-            "position constraints (equations differentiated twice); this one has none"
+            "ggl: needs a ReducedDAE from reduce_index(model) (method='differentiate') or "
+            "LagrangianSystem.index1() with position constraints (equations differentiated "
+            "twice); this one has none"
         )
     C = ca.vertcat(*[r.invariants[ch["invariants"][0]] for ch in pos])
     C1 = ca.vertcat(*[r.invariants[ch["invariants"][1]] for ch in pos])

@@ -21,6 +21,9 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
 6. Index-1 check: ``d alg / d z`` is evaluated (sparse) at random points and must be
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
+   Singularity is always judged after row and column equilibration (powers of two) with the
+   relative tolerance ``RANK_RTOL * n * sigma_max`` of :mod:`daekit.analysis`, so a regular
+   but badly scaled model (``1e-12 x' + x = 0``) is not mistaken for a singular one.
 
 Inputs: where ``F_i^(c_i)`` needs derivatives of a control ``u``, the symbols ``der(u)``,
 ``der(u,2)``, ... are appended to ``r.u`` and listed in ``r.input_derivatives``.

@@ -648,10 +648,24 @@ class Analysis:
     numeric: DerivativeArrayResult | None
     n_inputs: int = 0
     input_derivatives: dict[str, int] = field(default_factory=dict)
-    definitions: list[str] = field(default_factory=list)
     sigma: list[tuple[str, str, int]] = field(default_factory=list)
     singular_blocks: list[list[str]] = field(default_factory=list)
     structural_part: tuple[int, int] | None = None
+    _model: Model | None = field(default=None, repr=False, compare=False)
+    _definitions: list[str] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def definitions(self) -> list[str]:
+        """Equations that define a derivative explicitly (``p' = v``) and that the reduction
+        substitutes. Computed on first use: it needs the reduction's expansion of the model,
+        which for high offsets (chained pendula, c up to 20) is costly."""
+        if self._definitions is None:
+            if self._model is None or not self.structurally_ok:
+                self._definitions = []
+            else:
+                names = list(self.equation_offsets)
+                self._definitions = [names[i] for i in _definitions(self._model)]
+        return self._definitions
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
@@ -791,7 +805,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         sigma=[(eq_names[i], var_names[j], int(k))
                for i, j, k in zip(inc.rows.tolist(), inc.cols.tolist(), inc.vals.tolist())],
         input_derivatives=_input_derivatives(model, c),
-        definitions=[eq_names[i] for i in _definitions(model)],
+        _model=model,
         model_name=model.name,
         structural_index=sig.index,
         index=index,

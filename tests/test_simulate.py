@@ -350,3 +350,27 @@ def test_failure_time_is_where_idas_stopped_not_the_interval_start():
         dk.simulate(r, [0.0, 2.0], init)
     assert err.value.t == pytest.approx(1.0, abs=1e-3)
     assert err.value.trajectory.t[-1] == 0.0
+
+
+def test_ggl_initialized_on_the_index1_system_and_accurate_at_tight_tolerance():
+    """GGL (index 2): initialize gives the index-1 system's multiplier and mu = 0; IDAS at
+    rtol = atol = 1e-10 reaches case B's exact x(10), y(10) (reference-problems section 2)."""
+    import daekit as dk
+    from daekit.examples import exact
+
+    r = dk.reduce_index(dk.examples.pendulum_planar())
+    g = dk.ggl(r)
+    fixed = {"x": 1.0, "der(x)": 0.0}
+    guess = {"y": 0.0, "der(y)": 0.0}
+    i1, ig = dk.initialize(r, fixed=fixed, guess=guess), dk.initialize(g, fixed=fixed, guess=guess)
+    assert ig["T"] == pytest.approx(i1["T"], abs=1e-12)
+    assert ig.z0[-1] == 0.0 and g.z_names[-1].startswith("mu(")
+    tr = dk.simulate(g, np.linspace(0, 10, 101), ig, rtol=1e-10, atol=1e-10)
+    ref = exact.pendulum_planar(np.array([10.0]), np.pi / 2, g=9.81, L=1.0)
+    assert abs(tr["x"][-1] - float(np.ravel(ref["x"])[0])) < 1e-7
+    assert abs(tr["y"][-1] - float(np.ravel(ref["y"])[0])) < 1e-7
+    # from another angle too (it used to fail with IDA_CONV_FAIL at t ~ 5e-9)
+    i2 = dk.initialize(g, fixed={"x": float(np.sin(0.6)), "der(x)": 0.0},
+                       guess={"y": -0.8, "der(y)": 0.0})
+    tr = dk.simulate(g, np.linspace(0, 10, 101), i2, rtol=1e-10, atol=1e-10)
+    assert max(tr.max_invariant().values()) < 1e-8

@@ -37,6 +37,7 @@ choice of the same size on both (they may pick different, equally valid, sets).
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -198,6 +199,20 @@ def initialize(
     (True, 2)
     """
     from .simulate.inputs import InputSignal, resolve_params
+
+    base = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
+    if base is not None:
+        # an index-2 form (GGL): alg = 0 leaves its multipliers underdetermined; initialize
+        # the index-1 system it came from (same x, z first) and set the GGL multipliers mu = 0
+        b = initialize(base, t0, guess=guess, fixed=fixed, inputs=inputs, params=params,
+                       tol=tol, max_iter=max_iter)
+        extra = list(r.z_names[len(base.z_names):])
+        return dataclasses.replace(
+            b,
+            z0=np.concatenate([b.z0, np.zeros(len(extra))]),
+            z_names=list(r.z_names),
+            values={**b.values, **dict.fromkeys(extra, 0.0)},
+        )
 
     t0 = float(t0)
     nx, nz = r.nx, r.nz

@@ -243,4 +243,7 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     out.info["chains"] = [ch for ch in chains if len(ch["invariants"]) != 2]
     out.info["index"] = 2
     out.info["ggl_positions"] = [r.x_names[i] for i in q_idx]
+    # the index-1 system it came from: consistent initial values are found there (with the
+    # hidden constraint c'' = 0 that fixes the multipliers z), and mu = 0
+    out.info["index1"] = r
     return out

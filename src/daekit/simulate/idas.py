@@ -586,6 +586,12 @@ def _run_grid(r, system: _System, tg, x0, z0, U, pv) -> Trajectory:
     the transistor amplifier, need it); if that fails too, an interval-by-interval run locates
     the failure and returns the partial trajectory."""
     attempts: list[dict] = [{}]
+    if r.info.get("index", 1) >= 2 and "calc_ic" not in system.options:
+        # index 2 (GGL): the initial values are consistent (initialize works on the index-1
+        # system), and IDACalcIC as well as very small first steps make the index-2 Newton
+        # matrix (condition ~ 1/h) fail: start from xdot0 = ode(x0, z0) with a moderate step
+        spacing = float(np.min(np.diff(tg)))
+        attempts.insert(0, {"calc_ic": False, "init_xdot": None, "step0": 1e-4 * spacing})
     if "calc_ic" not in system.options and "suppress_algebraic" not in system.options:
         span = float(tg[-1] - tg[0])
         attempts.append({"calc_ic": False, "init_xdot": None,

@@ -29,7 +29,7 @@ import time
 import casadi as ca
 import numpy as np
 
-import daekit as dk
+from daekit.examples.ocp_examples import pendulum_with_tangential_force
 from daekit.ocp import OCP
 from daekit.ocp.collocation import radau_coefficients
 from daekit.reduction import reduce_index
@@ -38,18 +38,8 @@ G, L, T, TH1 = 9.81, 1.0, 2.0, np.pi / 6
 
 
 def model():
-    m = dk.Model("pendulum_force")
-    p = m.state("p", 2)
-    v = m.state("v", 2)
-    z = m.algebraic("z")
-    u = m.control("u")
-    Lp = m.parameter("L", L)
-    g = m.parameter("g", G)
-    m.equation(m.der(p) - v, name="kinematics")
-    m.equation(m.der(v) - (u * ca.vertcat(-p[1], p[0]) / Lp - ca.vertcat(0, g) - z * p),
-               name="newton")
-    m.equation(0.5 * (ca.dot(p, p) - Lp**2), name="rod")
-    return m, u
+    m = pendulum_with_tangential_force(L=L, g=G)
+    return m, m.variables["u"].sym
 
 
 def run_daekit(N: int, d: int = 3, method: str = "collocation"):

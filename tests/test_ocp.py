@@ -9,6 +9,7 @@ from scipy.integrate import solve_bvp
 
 import daekit as dk
 from daekit.errors import OCPError
+from daekit.examples.ocp_examples import pendulum_with_tangential_force
 from daekit.ocp import OCP, Free
 from daekit.ocp.collocation import radau_coefficients
 from daekit.ocp.consistency import independent_rows
@@ -18,18 +19,9 @@ G, L, T_SWING, TH1 = 9.81, 1.0, 2.0, np.pi / 6
 
 def planar_pendulum_with_force():
     """Cartesian planar pendulum (index 3), unit mass, a tangential force ``u`` on the mass."""
-    m = dk.Model("pendulum_force")
-    p = m.state("p", 2)
-    v = m.state("v", 2)
-    z = m.algebraic("z")
-    u = m.control("u")
-    Lp = m.parameter("L", L)
-    g = m.parameter("g", G)
-    tangent = ca.vertcat(-p[1], p[0]) / Lp  # unit tangent (cos th, sin th), p = L (sin, -cos)
-    m.equation(m.der(p) - v, name="kinematics")
-    m.equation(m.der(v) - (u * tangent - ca.vertcat(0, g) - z * p), name="newton")
-    m.equation(0.5 * (ca.dot(p, p) - Lp**2), name="rod")
-    return m, p, v, u
+    m = pendulum_with_tangential_force(L=L, g=G)
+    v = m.variables
+    return m, v["p"].sym, v["v"].sym, v["u"].sym
 
 
 def swing_ocp(intervals=30, degree=3, controls="polynomial"):

@@ -40,6 +40,7 @@ import numpy as np
 from ..model import Model
 
 __all__ = [
+    "pendulum_with_tangential_force",
     "crane",
     "crane_ocp",
     "crane_figure",
@@ -49,6 +50,31 @@ __all__ = [
     "pendulum3d_periodic_figure",
     "run_all",
 ]
+
+
+def pendulum_with_tangential_force(L: float = 1.0, g: float = 9.81) -> Model:
+    """The Cartesian planar pendulum (index 3, unit mass) driven by a force ``u`` tangent to the
+    circle: ``p' = v``, ``v' = u (-p_1, p_0)/L - g e_2 - z p``, ``(p.p - L^2)/2 = 0``.
+
+    In the angle ``th`` (``p = L (sin th, -cos th)``) it is ``L th'' = -g sin th + u``, which
+    makes it the test case for OCPs solved both on the index-3 model and in minimal
+    coordinates (``tests/test_ocp.py``, ``benchmarks/ocp.py``).
+
+    >>> pendulum_with_tangential_force().n_equations
+    5
+    """
+    m = Model("pendulum_force")
+    p = m.state("p", 2)
+    v = m.state("v", 2)
+    z = m.algebraic("z")
+    u = m.control("u")
+    Lp = m.parameter("L", L)
+    gp = m.parameter("g", g)
+    tangent = ca.vertcat(-p[1], p[0]) / Lp  # unit tangent (cos th, sin th), p = L (sin, -cos)
+    m.equation(m.der(p) - v, name="kinematics")
+    m.equation(m.der(v) - (u * tangent - ca.vertcat(0, gp) - z * p), name="newton")
+    m.equation(0.5 * (ca.dot(p, p) - Lp**2), name="rod")
+    return m
 
 
 def crane(M: float = 1.0, m: float = 0.5, L: float = 1.0, g: float = 9.81) -> Model:

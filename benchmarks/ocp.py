@@ -29,7 +29,10 @@ import time
 import casadi as ca
 import numpy as np
 
-from daekit.examples.ocp_examples import pendulum_with_tangential_force
+from daekit.examples.ocp_examples import (
+    pendulum_with_tangential_force,
+    swing_optimum_minimal_coordinates,
+)
 from daekit.ocp import OCP
 from daekit.ocp.collocation import radau_coefficients
 from daekit.reduction import reduce_index
@@ -108,21 +111,7 @@ def run_opti(N: int, d: int = 3, guess=None, ipopt_options=None):
 
 
 def minimal_coordinates_optimum() -> float:
-    """min int u^2 for th'' = -(g/L) sin th + u/L, th: 0 -> TH1 at rest, by solve_bvp on the
-    optimality conditions (u = -lam2/(2L), lam1' = lam2 (g/L) cos th, lam2' = -lam1)."""
-    from scipy.integrate import solve_bvp
-
-    def f(t, y):
-        th, om, l1, l2, _ = y
-        u = -l2 / (2 * L)
-        return np.vstack([om, -G / L * np.sin(th) + u / L, l2 * G / L * np.cos(th), -l1, u**2])
-
-    def bc(ya, yb):
-        return np.array([ya[0], ya[1], yb[0] - TH1, yb[1], ya[4]])
-
-    t = np.linspace(0, T, 200)
-    y0 = np.vstack([TH1 * t / T, np.zeros((4, t.size))])
-    return float(solve_bvp(f, bc, t, y0, tol=1e-10, max_nodes=100000).y[4, -1])
+    return swing_optimum_minimal_coordinates(TH1, T, L=L, g=G)
 
 
 def main(N: int = 100) -> None:

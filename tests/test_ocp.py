@@ -5,11 +5,13 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
-from scipy.integrate import solve_bvp
 
 import daekit as dk
 from daekit.errors import OCPError
-from daekit.examples.ocp_examples import pendulum_with_tangential_force
+from daekit.examples.ocp_examples import (
+    pendulum_with_tangential_force,
+    swing_optimum_minimal_coordinates,
+)
 from daekit.ocp import OCP, Free
 from daekit.ocp.collocation import radau_coefficients
 from daekit.ocp.consistency import independent_rows
@@ -34,22 +36,8 @@ def swing_ocp(intervals=30, degree=3, controls="polynomial"):
 
 
 def pontryagin_swing() -> float:
-    """min int u^2 for th'' = -(g/L) sin th + u/L (m = 1), th: 0 -> TH1 at rest, by solve_bvp on
-    the optimality conditions: u = -lam2/(2L), lam1' = lam2 (g/L) cos th, lam2' = -lam1."""
-
-    def f(t, y):
-        th, om, l1, l2, _ = y
-        u = -l2 / (2 * L)
-        return np.vstack([om, -G / L * np.sin(th) + u / L, l2 * G / L * np.cos(th), -l1, u**2])
-
-    def bc(ya, yb):
-        return np.array([ya[0], ya[1], yb[0] - TH1, yb[1], ya[4]])
-
-    t = np.linspace(0, T_SWING, 200)
-    y0 = np.vstack([TH1 * t / T_SWING, np.zeros((4, t.size))])
-    s = solve_bvp(f, bc, t, y0, tol=1e-10, max_nodes=100000)
-    assert s.status == 0
-    return float(s.y[4, -1])
+    """min int u^2 in the angle coordinate, by solve_bvp (independent of daekit's OCP)."""
+    return swing_optimum_minimal_coordinates(TH1, T_SWING, L=L, g=G)
 
 
 def test_index3_pendulum_matches_minimal_coordinates_bvp():

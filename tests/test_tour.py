@@ -127,3 +127,19 @@ def test_drift_animation_rod_lengths_and_bad_input(tmp_path):
         animate_drift(t, {"a": ok}, -1.0, tmp_path / "d.gif")
     with pytest.raises(ModelError, match="kept has 5 rows"):
         animate_drift(t, {"kept": ok[:5]}, 1.0, tmp_path / "d.gif")
+
+
+def test_counts_in_messages_have_the_right_number():
+    """Lecture L1 (shared/reference-problems.md: x - x' + 1 = 0, x' z + 2 = 0) has one state and
+    one degree of freedom: the explanation says "1 initial value", the reduced form "1 state";
+    the 3D pendulum L3 has 4; L6 (one rod) has 1 invariant."""
+    import daekit as dk
+    from daekit.wording import count
+
+    text = dk.analyze(dk.examples.l1()).explain()
+    assert "Degrees of freedom: 1 initial value can" in text and "1 initial values" not in text
+    assert "1 state," in repr(dk.reduce_index(dk.examples.l1()))
+    assert "Degrees of freedom: 4 initial values can" in dk.analyze(dk.examples.l3()).explain()
+    assert "1 invariant)" in repr(dk.reduce_index(dk.examples.l6()))
+    assert [count(k, "iteration") for k in (0, 1, 2)] == ["0 iterations", "1 iteration",
+                                                         "2 iterations"]

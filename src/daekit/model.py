@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError, StructuralError
+from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "parse_name", "element_name", "expand_name",
            "NameNotFoundError"]
@@ -439,7 +440,7 @@ class Model:
         if len(orders) != len(js):
             raise ModelError(
                 f"model {self.name!r}: symbols_at needs one order per unknown "
-                f"({len(js)} unknowns, {len(orders)} orders)"
+                f"({count(len(js), 'unknown')}, {count(len(orders), 'order')})"
             )
         if not js:
             return ca.SX(0, 1)
@@ -618,8 +619,8 @@ class Model:
 
 
 def _count(n: int, noun: str) -> str:
-    """``"1 equation"``, ``"3 equations"``."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+    """``"1 equation"``, ``"3 equations"`` (:func:`daekit.wording.count`)."""
+    return count(n, noun)
 
 
 def _short(names: list[str], limit: int = 12) -> str:

@@ -246,8 +246,8 @@ def plot_in_plane(points, ax=None, unit: str = "m", names: tuple[str, str, str] 
 #: The one line under :func:`plot_structure`'s figure that says what ``c``, ``d`` and the
 #: transversal are.
 STRUCTURE_LEGEND = (
-    "c = how often the equation is differentiated;  d = highest derivative of the unknown;  "
-    "transversal (boxed) = one cell per row and column with the largest sum"
+    "c = times the equation is differentiated;  d = highest derivative of the unknown;  "
+    "transversal (boxed) = one cell per row and column, largest sum"
 )
 
 
@@ -315,7 +315,14 @@ def plot_structure(analysis, ax=None, max_size: int = 60):
                  "shaded: on the system Jacobian, cell = d - c)", fontsize=10, pad=12)
     ax.set_aspect("equal")
     if own:
-        fig.text(0.5, 0.012, STRUCTURE_LEGEND, ha="center", va="bottom", fontsize=8)
+        legend = fig.text(0.5, 0.012, STRUCTURE_LEGEND, ha="center", va="bottom", fontsize=8)
+        try:  # shrink the one line until it fits the figure's width
+            width = legend.get_window_extent(fig.canvas.get_renderer()).width
+            room = 0.97 * fig.get_figwidth() * fig.dpi
+            if width > room:
+                legend.set_fontsize(8 * room / width)
+        except (AttributeError, RuntimeError):  # a backend without a renderer: keep 8 pt
+            pass
         fig.tight_layout(rect=(0, 0.035, 1, 1))
     else:
         fig.tight_layout()

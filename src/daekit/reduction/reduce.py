@@ -56,6 +56,7 @@ from ..errors import ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
+from ..threads import limit_blas_threads
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
 
@@ -64,6 +65,7 @@ __all__ = ["reduce_index", "check_index1"]
 _DENSE_LIMIT = 400
 
 
+@limit_blas_threads
 def reduce_index(
     model: Model,
     method: str = "differentiate",

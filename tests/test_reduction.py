@@ -128,10 +128,10 @@ def test_pendulum3d_plain_pryce_scheme():
     _pendulum3d_invariant_check(r, with_der_p=True)
 
 
-def test_pendulum3d_minimal_index1_form():
-    """Default: der(p) = v is eliminated; the lecture's index-1 form (L3): states (p, v),
-    algebraic (v', z), invariants rod and d/dt rod only."""
-    r = reduce_index(ex.pendulum3d())
+def test_pendulum3d_states_eliminated_kkt_form():
+    """eliminate="states": der(p) = v is eliminated; the KKT index-1 form (L3): states
+    (p, v), algebraic (v', z), invariants rod and d/dt rod only."""
+    r = reduce_index(ex.pendulum3d(), eliminate="states")
     assert r.info["index1_check"] == "passed"
     assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
     assert r.z_names == ["der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
@@ -150,7 +150,7 @@ def test_pendulum3d_minimal_index1_form():
 def test_pendulum3d_alg_equals_lecture_kkt_form():
     """alg equals [m I, p; p^T, 0] [v'; z] - [u - m g e3; -v.v] (lecture L3) at random
     points (not only on solutions), for random parameters too."""
-    r = reduce_index(ex.pendulum3d())
+    r = reduce_index(ex.pendulum3d(), eliminate="states")
     f = ca.Function("g", [r.x, r.z, r.u, r.p], [r.alg])
     rng = np.random.default_rng(2)
     for _ in range(5):
@@ -173,7 +173,7 @@ def test_delta_robot_minimal_index1_form():
     3 velocities)."""
     m = ex.delta_robot()
     r0 = reduce_index(m, eliminate=False)
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert (r0.nx, r0.nz, len(r0.invariant_names)) == (18, 15, 12)
     assert (r.nx, r.nz) == (12, 9)
     assert r.x_names == (
@@ -222,7 +222,7 @@ def _pendulum_velocity_split(scale: float = 2.0) -> Model:
 def test_elimination_in_dependency_order_matches_exact_solution():
     """Eliminations that depend on each other (y' = x' + v2 with x' = v1) resolve to
     y' = v1 + v2, and the result integrates to the exact pendulum (section 2, case B)."""
-    r = reduce_index(_pendulum_velocity_split())
+    r = reduce_index(_pendulum_velocity_split(), eliminate="states")
     assert r.x_names == ["x", "y", "v1", "v2"]
     assert r.invariant_names == ["rod", "d/dt rod"]
     assert sorted(r.z_names) == ["T", "der(v1)", "der(v2)"]
@@ -243,7 +243,7 @@ def test_nonconstant_coefficient_is_not_eliminated():
     m.equation((1 + x**2) * m.der(x) - v, name="k")
     m.equation(m.der(v) - T, name="n")
     m.equation(x - ca.sin(m.t), name="track")
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert r.info["eliminated"] == []
     assert "der(x)" in r.x_names and r.invariant_names == ["k", "track", "d/dt track"]
 
@@ -483,7 +483,7 @@ def test_large_chain_is_fast():
 
     m = ex.planar_chain(200)
     t0 = time.perf_counter()
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert time.perf_counter() - t0 < 2.0
     # q' = v eliminated: states (q, v), algebraic (v', lambda), invariants: the N rods and
     # their derivatives
@@ -569,7 +569,7 @@ def _rc(C: float) -> Model:
 def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
     """C x' + x = 0 is an ODE for any C > 0 (x = x0 exp(-t/C)); a small C must not read as a
     singular system Jacobian (which would amend the model into x = 0)."""
-    r = reduce_index(_rc(1e-3))
+    r = reduce_index(_rc(1e-3), eliminate="states")
     assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
     assert (r.x_names, r.z_names) == (["x"], ["der(x)"])
     grid = [0.0, 1e-3, 5e-3]
@@ -577,8 +577,8 @@ def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
     for col, t in enumerate(grid[1:]):
         assert xf[0, col] == pytest.approx(2.0 * np.exp(-t / 1e-3), rel=1e-8)
         assert zf[0, col] == pytest.approx(-2.0 / 1e-3 * np.exp(-t / 1e-3), rel=1e-6)
-    for method in ("differentiate", "dummy_derivatives"):
-        r12 = reduce_index(_rc(1e-12), method=method)
+    for method, kw in (("differentiate", {"eliminate": "states"}), ("dummy_derivatives", {})):
+        r12 = reduce_index(_rc(1e-12), method=method, **kw)
         assert r12.info["amendments"] == [] and r12.info["index1_check"] == "passed"
         assert r12.z_names == ["der(x)"] and r12.x_names == ["x"]
         # alg is still C x' + x: d alg / d x' = C
@@ -594,7 +594,7 @@ def test_scaled_two_time_scale_model_is_not_amended():
     M, C = m.parameter("M", 1e3), m.parameter("C", 1e-8)
     m.equation(M * m.der(x) + x, name="mech")
     m.equation(C * m.der(y) + y - x, name="elec")
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
     assert r.x_names == ["x", "y"] and r.z_names == ["der(x)", "der(y)"]
     x0 = 1.0

@@ -77,33 +77,64 @@ class Elimination:
         return ca.substitute([ca.SX(e) for e in exprs], [self.syms], [self.defs])
 
 
-def _candidates(ex: Expansion) -> list[tuple[int, int, int, float]]:
-    """(i, j, k, a): equation element i is ``a x_j^(k) - g`` with a constant, k = d_j - c_i >= 1.
+def _constant_coefficients(J: ca.SX, model) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+    """The nonzeros of the sparse Jacobian ``J`` that are constants or depend on parameters
+    only, whole-vector: ``(rows, cols, exprs, values)`` with ``values`` at the parameters'
+    default values (entries that vanish there are left out)."""
+    r_idx, c_idx = J.sparsity().get_triplet()
+    if not r_idx:
+        return np.zeros(0, int), np.zeros(0, int), [], np.zeros(0)
+    nz = ca.vertcat(*J.nonzeros())
+    p = model.parameter_symbols
+    phash = {p[i].element_hash() for i in range(p.numel())}
+    others = [s for s in ca.symvar(nz) if s.element_hash() not in phash]
+    if others:
+        dep_rows, _ = ca.jacobian_sparsity(nz, ca.vertcat(*others)).get_triplet()
+        free = np.ones(nz.numel(), dtype=bool)
+        free[np.asarray(dep_rows, dtype=np.int64)] = False
+    else:
+        free = np.ones(nz.numel(), dtype=bool)
+    keep = np.nonzero(free)[0]
+    if not keep.size:
+        return np.zeros(0, int), np.zeros(0, int), [], np.zeros(0)
+    sel = nz[keep.tolist()]
+    if p.numel():
+        vals = np.asarray(ca.Function("coef", [p], [sel])(model.parameter_values),
+                          dtype=float).ravel()
+    else:
+        vals = np.asarray(ca.evalf(sel), dtype=float).ravel()
+    good = (vals != 0.0) & np.isfinite(vals)
+    keep, vals = keep[good], vals[good]
+    exprs = ca.vertsplit(sel[np.nonzero(good)[0].tolist()]) if keep.size else []
+    return (np.asarray(r_idx, dtype=np.int64)[keep], np.asarray(c_idx, dtype=np.int64)[keep],
+            exprs, vals)
 
-    One sparse Jacobian per distinct offset value ``c_i >= 1``, with respect to the symbols that
-    would be states.
+
+def _candidates(ex: Expansion, highest: bool = True) -> list[tuple[int, int, int, float, ca.SX]]:
+    """(i, j, k, a, a_expr): equation element i is ``a x_j^(k) - g`` with ``a`` a nonzero
+    constant or an expression of the parameters only, and ``g`` free of ``x_j^(k)``.
+
+    ``c_i >= 1``: ``k = d_j - c_i >= 1`` (``x_j^(k)`` would be a state, as ``der(p)`` in
+    ``p' = v``). ``c_i = 0`` (``highest``): ``k = d_j >= 1``, a highest derivative that would
+    be an algebraic unknown (``der(v)`` in ``m v' = f``). One sparse Jacobian per distinct
+    offset value, with respect to those symbols; the coefficients are sorted out whole-vector.
     """
     c, d = ex.c, ex.d
     F = ex.levels[0]
     out = []
-    for cv in sorted(set(int(v) for v in c[c >= 1])):
+    values = sorted(set(int(v) for v in c[c >= (0 if highest else 1)]))
+    for cv in values:
         rows = np.nonzero(c == cv)[0]
-        cols = np.nonzero(d - cv >= 1)[0]
-        if not len(cols):
+        cols = np.nonzero(d - cv >= 1)[0] if cv >= 1 else np.nonzero(d >= 1)[0]
+        if not len(cols) or not len(rows):
             continue
         X = ex.unknown(d - cv, cols)
         J = ca.jacobian(F[rows.tolist()], X)
-        r_idx, c_idx = J.sparsity().get_triplet()
-        nz = J.nonzeros()
-        for r, cc, e in zip(r_idx, c_idx, nz, strict=True):
-            if not e.is_constant():
-                continue
-            a = float(ca.DM(e))
-            if a == 0.0 or not np.isfinite(a):
-                continue
-            j = int(cols[cc])
-            out.append((int(rows[r]), j, int(d[j]) - cv, a))
-    out.sort()
+        rr, cc, exprs, vals = _constant_coefficients(J, ex.model)
+        for r, col, e, a in zip(rr, cc, exprs, vals, strict=True):
+            j = int(cols[col])
+            out.append((int(rows[r]), j, int(d[j]) - cv, float(a), e))
+    out.sort(key=lambda t: t[:3])
     return out
 
 
@@ -129,18 +160,20 @@ def _definitions(ex: Expansion, chosen):
     """Pairs, symbols and raw definitions ``g^(s)/a`` of the chosen eliminations."""
     c = ex.c
     pairs, syms, defs = [], [], []
-    maxc = max((int(c[i]) for i, _, _, _ in chosen), default=0)
+    maxc = max((int(c[e[0]]) for e in chosen), default=0)
     for s in range(maxc + 1):
-        sel = [(i, j, k, a) for i, j, k, a in chosen if int(c[i]) >= s]
+        sel = [e for e in chosen if int(c[e[0]]) >= s]
         if not sel:
             continue
-        Fs = ex.equation(s, [i for i, _, _, _ in sel])
-        Xs = ex.model.symbols_at([j for _, j, _, _ in sel], [k + s for _, _, k, _ in sel])
+        Fs = ex.equation(s, [e[0] for e in sel])
+        Xs = ex.model.symbols_at([e[1] for e in sel], [e[2] + s for e in sel])
         G = _free_of_own_symbol(Fs, Xs)  # = -g^(s)
-        inv_a = ca.DM([-1.0 / a for _, _, _, a in sel])
-        defs.append(G * inv_a)
+        if all(e[4].is_constant() for e in sel):
+            defs.append(G * ca.DM([-1.0 / e[3] for e in sel]))
+        else:  # parameter-dependent coefficients stay symbolic
+            defs.append(-G / ca.vertcat(*[e[4] for e in sel]))
         syms.append(Xs)
-        pairs += [(j, k + s) for _, j, k, _ in sel]
+        pairs += [(e[1], e[2] + s) for e in sel]
     if not pairs:
         return [], ca.SX(0, 1), ca.SX(0, 1)
     return pairs, ca.vertcat(*syms), ca.vertcat(*defs)
@@ -176,18 +209,23 @@ def _dependency_depth(sp: ca.Sparsity, n: int):
     return max(depth), []
 
 
-def find_eliminations(ex: Expansion) -> Elimination:
+def find_eliminations(ex: Expansion, highest: bool = True) -> Elimination:
     """The explicit derivatives of ``ex`` to eliminate, with their resolved definitions.
+
+    ``highest``: also the highest derivatives that an equation of offset 0 gives explicitly
+    (``der(v)`` in ``m v' = f``), which would otherwise be algebraic unknowns.
 
     Greedy: equation elements in order, each takes its first candidate whose unknown is not
     taken yet. Eliminations whose definitions form a cycle are dropped (and listed in
-    ``skipped``).
+    ``skipped``): a constant but non-diagonal mass matrix keeps its accelerations as
+    algebraic unknowns.
     """
     chosen, taken_j, taken_i = [], set(), set()
-    for i, j, k, a in _candidates(ex):
+    for cand in _candidates(ex, highest):
+        i, j = cand[0], cand[1]
         if i in taken_i or j in taken_j:
             continue
-        chosen.append((i, j, k, a))
+        chosen.append(cand)
         taken_i.add(i)
         taken_j.add(j)
     skipped: list[int] = []
@@ -199,15 +237,15 @@ def find_eliminations(ex: Expansion) -> Elimination:
                 defs = ca.substitute(defs, syms, defs)
             break
         bad_j = {pairs[r][0] for r in cyclic}
-        skipped += [i for i, j, _, _ in chosen if j in bad_j]
+        skipped += [e[0] for e in chosen if e[1] in bad_j]
         chosen = [e for e in chosen if e[1] not in bad_j]
     if not chosen:
         return Elimination(skipped=skipped)
     return Elimination(
-        equations=[i for i, _, _, _ in chosen],
-        unknowns=[j for _, j, _, _ in chosen],
-        orders=[k for _, _, k, _ in chosen],
-        coefficients=[a for _, _, _, a in chosen],
+        equations=[e[0] for e in chosen],
+        unknowns=[e[1] for e in chosen],
+        orders=[e[2] for e in chosen],
+        coefficients=[e[3] for e in chosen],
         pairs=pairs,
         syms=syms,
         defs=defs,

@@ -72,7 +72,7 @@ def reduce_index(
     point: dict | None = None,
     check: bool = True,
     seed: int = 0,
-    eliminate: bool = True,
+    eliminate: bool | str = True,
 ) -> ReducedDAE:
     """Reduce a model of any index to an index-1 semi-explicit DAE with its invariants.
 
@@ -92,11 +92,18 @@ def reduce_index(
         Check that ``d alg / d z`` is nonsingular (index 1) at random points.
     seed : int
         Seed of the random points.
-    eliminate : bool
-        For ``"differentiate"``: eliminate derivatives that an equation gives explicitly
-        (``p' = v``; see :mod:`daekit.reduction.eliminate`), the minimal index-1 form.
-        ``False`` gives Pryce's scheme as it is (every ``x_j^(k)``, ``k < d_j``, a state).
-        ``r.info["eliminated"]`` lists what was eliminated, by which equation, as what.
+    eliminate : bool or ``"states"``
+        For ``"differentiate"``: the minimal index-1 form (default ``True``; see
+        :mod:`daekit.reduction.eliminate`): derivatives that an equation gives explicitly with
+        a constant or parameter-only coefficient are substituted, both would-be states
+        (``der(p)`` in ``p' = v``) and highest derivatives that would be algebraic unknowns
+        (``der(v)`` in ``m v' = f(p, z)``). The 3D pendulum then has the lecture's form
+        ``x = (p, v)``, ``z = (z)``. A coefficient that depends on the state (a mass matrix
+        ``M(q)``) keeps the KKT form (``der(v)`` algebraic). ``"states"``: only the would-be
+        states (``z = (der(v), z)`` for the pendulum). ``False``: Pryce's scheme as it is
+        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.info["eliminated"]`` lists what was
+        eliminated, by which equation, as what; ``r.variables`` still gives every name
+        (``"der(v)[0]"`` as an expression of ``p``, ``z``, ...).
 
     Returns
     -------
@@ -132,7 +139,13 @@ def reduce_index(
     ex, amendments = amended_expansion(model, seed=seed)
     n = ex.n
     c, d = ex.c, ex.d
-    el = find_eliminations(ex) if eliminate else Elimination()
+    if eliminate not in (True, False, "states"):
+        raise ReductionError(
+            f"reduce_index: eliminate={eliminate!r} is not an option: use True (the minimal "
+            "index-1 form), 'states' (eliminate only duplicated states such as p' = v) or "
+            "False (Pryce's scheme as it is)"
+        )
+    el = find_eliminations(ex, highest=eliminate is True) if eliminate else Elimination()
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
@@ -157,7 +170,14 @@ def reduce_index(
         for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
     if check:
-        check_index1(r, seed=seed)
+        try:
+            check_index1(r, seed=seed)
+        except ReductionError:
+            if eliminate is True and any(o == int(d[j]) for j, o in el.pairs):
+                # name every equation of the singular combination, including those whose
+                # highest derivatives were substituted: the message of the KKT form
+                reduce_index(model, seed=seed, eliminate="states")
+            raise
     return r
 
 
@@ -649,7 +669,8 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     (a matrix of analytic functions that is nonsingular at one point is nonsingular almost
     everywhere). The message names the algebraic equations in the singular combination.
     """
-    if r.nz == 0:
+    if r.nz == 0:  # an ODE (alg has as many rows as z)
+        r.info["index1_check"] = "passed"
         return
     J = ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])

@@ -6,25 +6,40 @@ constraint ``c(p) = 0``, has ``d_p = 2``: the reduced system carries ``p``, ``de
 as states, ``der(p,2)`` as an algebraic unknown, and ``der(p) - v`` as extra invariants, although
 ``der(p)`` is just ``v``.
 
-This module removes such duplicates. An equation element ``F_i`` with offset ``c_i >= 1`` is
-*explicit* in a derivative ``x_j^(k)`` (``k >= 1``, ``k = d_j - c_i``, so ``x_j^(k)`` would be a
-state) when
+This module removes such duplicates, and the algebraic unknowns an equation gives
+explicitly. An equation element ``F_i`` is *explicit* in a derivative ``x_j^(k)`` when
 
-    ``F_i = a x_j^(k) - g``,  ``a`` a nonzero constant, ``g`` free of ``x_j^(k)``
+    ``F_i = a x_j^(k) - g``,  ``a`` a nonzero constant or an expression of the parameters
+    only (``m`` in ``m v' = f``), ``g`` free of ``x_j^(k)``
 
-(checked with CasADi: the Jacobian ``dF_i/dx_j^(k)`` is a constant, which makes ``F_i`` affine in
-``x_j^(k)``). Then ``F_i^(s) = a x_j^(k+s) - g^(s)`` for ``s = 0..c_i``, and every symbol
-``x_j^(k+s)`` is replaced by ``g^(s) / a``: the states ``x_j^(k..d_j-1)`` and the algebraic unknown
-``x_j^(d_j)`` disappear, and with them the invariants ``F_i, ..., F_i^(c_i-1)`` and the
-algebraic equation ``F_i^(c_i)`` (they hold identically). The count of states minus invariants
-(the degrees of freedom) is unchanged, and the new algebraic Jacobian is the Schur complement
-of Pryce's system Jacobian with respect to the constant pivots ``a``, so it is nonsingular
-exactly where the old one was: the result is still index 1.
+(checked with CasADi, whole-vector: the nonzeros of the Jacobian ``dF/dx^(k)`` that depend on
+no symbol but parameters, nonzero at the parameters' default values). Two kinds:
+
+1. *Would-be states* (``c_i >= 1``, ``k = d_j - c_i >= 1``, as ``der(p)`` in ``p' = v``):
+   ``F_i^(s) = a x_j^(k+s) - g^(s)`` for ``s = 0..c_i``, and every symbol ``x_j^(k+s)`` is
+   replaced by ``g^(s) / a``: the states ``x_j^(k..d_j-1)`` and the algebraic unknown
+   ``x_j^(d_j)`` disappear, and with them the invariants ``F_i, ..., F_i^(c_i-1)`` and the
+   algebraic equation ``F_i^(c_i)`` (they hold identically).
+2. *Highest derivatives* (``c_i = 0``, ``k = d_j >= 1``, as ``der(v)`` in ``m v' = f(p, z)``;
+   ``highest=True``, the default of :func:`daekit.reduce_index`): ``x_j^(d_j) = g / a`` is
+   substituted into the ODE right-hand side and the other algebraic equations; it is no
+   algebraic unknown, and ``F_i`` no algebraic equation. The 3D pendulum then has the
+   lecture's hand-written form: ``x = (p, v)``, ``z = (z)``, ``alg = d2/dt2 rod`` with
+   ``v' = (u - m g e3 - z p)/m`` substituted.
+
+Either way the count of states minus invariants (the degrees of freedom) is unchanged, and
+the new algebraic Jacobian is the Schur complement of Pryce's system Jacobian with respect to
+the pivots ``a``, so it is nonsingular exactly where the old one was: the result is still
+index 1. A coefficient that depends on the state (a mass matrix ``M(q) v' = f``) is not a
+pivot that can be taken once for all: such a ``v'`` stays an algebraic unknown (the KKT form).
+A parameter-only coefficient is divided by symbolically; a parameter value that makes it zero
+makes the model singular in either form.
 
 The ``g^(s)`` are read off the levels the expansion already holds (``F_i^(s)`` with
 ``x_j^(k+s)`` set to zero: no new differentiation). Where ``g`` contains other eliminated
 symbols, the definitions are substituted into each other in dependency order; an elimination
-whose definitions would depend on themselves (a cycle) is not made.
+whose definitions would depend on themselves (a cycle, as for a constant but non-diagonal
+mass matrix) is not made.
 
 Example
 -------
@@ -32,8 +47,8 @@ Example
 >>> r = dk.reduce_index(dk.examples.pendulum3d())
 >>> r.x_names
 ['p[0]', 'p[1]', 'p[2]', 'v[0]', 'v[1]', 'v[2]']
->>> r.invariant_names, str(r.variables["der(p)[0]"])
-(['rod', 'd/dt rod'], 'v[0]')
+>>> r.z_names, r.invariant_names, str(r.variables["der(p)[0]"])
+(['z'], ['rod', 'd/dt rod'], 'v[0]')
 """
 
 from __future__ import annotations
@@ -110,7 +125,7 @@ def _constant_coefficients(J: ca.SX, model) -> tuple[np.ndarray, np.ndarray, lis
             exprs, vals)
 
 
-def _candidates(ex: Expansion, highest: bool = True) -> list[tuple[int, int, int, float, ca.SX]]:
+def _candidates(ex: Expansion, highest: bool = False) -> list[tuple[int, int, int, float, ca.SX]]:
     """(i, j, k, a, a_expr): equation element i is ``a x_j^(k) - g`` with ``a`` a nonzero
     constant or an expression of the parameters only, and ``g`` free of ``x_j^(k)``.
 
@@ -209,7 +224,7 @@ def _dependency_depth(sp: ca.Sparsity, n: int):
     return max(depth), []
 
 
-def find_eliminations(ex: Expansion, highest: bool = True) -> Elimination:
+def find_eliminations(ex: Expansion, highest: bool = False) -> Elimination:
     """The explicit derivatives of ``ex`` to eliminate, with their resolved definitions.
 
     ``highest``: also the highest derivatives that an equation of offset 0 gives explicitly

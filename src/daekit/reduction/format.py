@@ -24,13 +24,14 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
     >>> from daekit.reduction import reduce_index
     >>> text = format_reduced(reduce_index(dk.examples.pendulum_planar()))
     >>> print(text.splitlines()[0])
-    pendulum_planar reduced by differentiate: 4 states, 3 algebraic unknowns, 2 invariants
+    pendulum_planar reduced by differentiate: 4 states, 1 algebraic unknown, 2 invariants
     >>> "0 = d2/dt2 rod:" in text
     True
     """
     name = getattr(r.model, "name", "model")
     out = [
-        f"{name} reduced by {r.method}: {r.nx} states, {r.nz} algebraic unknowns, "
+        f"{name} reduced by {r.method}: {r.nx} states, {r.nz} algebraic "
+        f"unknown{'' if r.nz == 1 else 's'}, "
         f"{len(r.invariant_names)} invariants"
         + (f", stabilization {r.stabilization}" if r.stabilization else "")
     ]

@@ -12,12 +12,14 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
    ``0 = F_i^(c_i)``; their Jacobian with respect to ``z`` is Pryce's system Jacobian.
 4. Invariants: ``F_i^(k)`` for ``k < c_i``, named ``"rod"``, ``"d/dt rod"``, ...
 5. Elimination (default, ``eliminate=True``; :mod:`daekit.reduction.eliminate`): an equation
-   that says ``a x_j^(k) = g`` with a constant ``a`` and ``x_j^(k)`` a would-be state (``p' = v``)
-   defines ``x_j^(k)`` and its derivatives; they are replaced by ``g/a`` and its derivatives,
-   so they are neither states nor algebraic unknowns, and the equation drops out of the
-   invariants. The first-order 3D pendulum then has the lecture's index-1 form: states
-   ``(p, v)``, algebraic ``(v', z)``, invariants ``rod`` and ``d/dt rod``; ``r.variables``
-   still gives ``"der(p)"`` (as the expression ``v``).
+   that says ``a x_j^(k) = g`` with a constant or parameter-only ``a`` defines ``x_j^(k)``:
+   a would-be state (``p' = v``) is replaced, with its derivatives, by ``g/a`` and its
+   derivatives, and the equation drops out of the invariants; a highest derivative
+   (``m v' = f(p, z)``) is replaced by ``g/a`` and is no algebraic unknown. The first-order
+   3D pendulum then has the lecture's minimal index-1 form: states ``(p, v)``, algebraic
+   ``(z)`` only, invariants ``rod`` and ``d/dt rod``; ``r.variables`` still gives
+   ``"der(p)"`` (as the expression ``v``) and ``"der(v)"`` (as ``(u - m g e3 - z p)/m``).
+   ``eliminate="states"`` keeps the KKT form (``z = (v', z)``), ``False`` Pryce's scheme.
 6. Index-1 check: ``d alg / d z`` is evaluated (sparse) at random points and must be
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
@@ -39,8 +41,10 @@ Example
 >>> r = reduce_index(m)
 >>> r.x_names
 ['q[0]', 'q[1]', 'der(q)[0]', 'der(q)[1]']
->>> r.z_names, r.invariant_names
-(['der(q,2)[0]', 'der(q,2)[1]', 'T'], ['rod', 'd/dt rod'])
+>>> r.z_names, r.invariant_names     # der(q,2) = T q + g e2 is substituted
+(['T'], ['rod', 'd/dt rod'])
+>>> reduce_index(m, eliminate="states").z_names   # the KKT form
+['der(q,2)[0]', 'der(q,2)[1]', 'T']
 """
 
 from __future__ import annotations
@@ -101,8 +105,9 @@ def reduce_index(
         ``x = (p, v)``, ``z = (z)``. A coefficient that depends on the state (a mass matrix
         ``M(q)``) keeps the KKT form (``der(v)`` algebraic). ``"states"``: only the would-be
         states (``z = (der(v), z)`` for the pendulum). ``False``: Pryce's scheme as it is
-        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.info["eliminated"]`` lists what was
-        eliminated, by which equation, as what; ``r.variables`` still gives every name
+        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.info["eliminated"]`` lists the
+        would-be states eliminated, ``r.info["substituted"]`` the highest derivatives
+        substituted, each by which equation, as what; ``r.variables`` still gives every name
         (``"der(v)[0]"`` as an expression of ``p``, ``z``, ...).
 
     Returns
@@ -165,10 +170,16 @@ def reduce_index(
     r.info["chains"] = chains
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
-    r.info["eliminated"] = [
-        {"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]}
+    # "eliminated": would-be states (their equations are no invariants: what
+    # analyze().definitions lists); "substituted": highest derivatives that would have been
+    # algebraic unknowns (their equations of offset 0 were never invariants)
+    done = [
+        ({"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]},
+         int(c[i]) == 0)
         for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
+    r.info["eliminated"] = [e for e, top in done if not top]
+    r.info["substituted"] = [e for e, top in done if top]
     if check:
         try:
             check_index1(r, seed=seed)

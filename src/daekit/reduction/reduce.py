@@ -141,15 +141,43 @@ def reduce_index(
         raise ReductionError(
             f"unknown reduction method {method!r}: use 'differentiate' or 'dummy_derivatives'"
         )
-    ex, amendments = amended_expansion(model, seed=seed)
-    n = ex.n
-    c, d = ex.c, ex.d
     if eliminate not in (True, False, "states"):
         raise ReductionError(
             f"reduce_index: eliminate={eliminate!r} is not an option: use True (the minimal "
             "index-1 form), 'states' (eliminate only duplicated states such as p' = v) or "
             "False (Pryce's scheme as it is)"
         )
+    if not check:
+        ex, amendments = amended_expansion(model, seed=seed)
+        return _differentiate(ex, amendments, eliminate)
+    # The amendment machinery (left null vectors of Pryce's system Jacobian) only runs where
+    # that Jacobian is singular, i.e. where the index-1 check of the plain reduction fails
+    # (d alg / d z is the system Jacobian, or its Schur complement on the eliminated pivots)
+    ex = expand(model)
+    r = _differentiate(ex, [], eliminate)
+    try:
+        check_index1(r, seed=seed)
+        return r
+    except ReductionError:
+        pass
+    ex, amendments = amended_expansion(model, seed=seed)
+    if amendments:
+        r = _differentiate(ex, amendments, eliminate)
+    try:
+        check_index1(r, seed=seed)
+    except ReductionError:
+        if eliminate is True and r.info.get("substituted"):
+            # name every equation of the singular combination, including those whose
+            # highest derivatives were substituted: the message of the KKT form
+            reduce_index(model, seed=seed, eliminate="states")
+        raise
+    return r
+
+
+def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDAE:
+    """The ReducedDAE of Pryce's scheme on the expansion ``ex`` (eliminations made)."""
+    n = ex.n
+    c, d = ex.c, ex.d
     el = find_eliminations(ex, highest=eliminate is True) if eliminate else Elimination()
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
@@ -180,16 +208,8 @@ def reduce_index(
     ]
     r.info["eliminated"] = [e for e, top in done if not top]
     r.info["substituted"] = [e for e, top in done if top]
-    if check:
-        try:
-            check_index1(r, seed=seed)
-        except ReductionError:
-            if eliminate is True and any(o == int(d[j]) for j, o in el.pairs):
-                # name every equation of the singular combination, including those whose
-                # highest derivatives were substituted: the message of the KKT form
-                reduce_index(model, seed=seed, eliminate="states")
-            raise
     return r
+
 
 
 # ---------------------------------------------------------------------------- SA amendment
@@ -497,9 +517,24 @@ def _invariants(ex: Expansion, skip=()):
     return inv, names, chains
 
 
+def _element_names(var, k: int) -> list[str]:
+    """``["der(p)[0]", "der(p)[1]", ...]``: the names of ``var``'s order-``k`` elements."""
+    base = element_name(var.name, 1, 0, k)
+    return [base] if var.size == 1 else [f"{base}[{i}]" for i in range(var.size)]
+
+
 def _pair_names(ex: Expansion, pairs) -> list[str]:
     """Original names ``"der(p)[0]"`` of the pairs ``(j, k)``."""
-    return [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in pairs]
+    cache: dict[tuple[int, int], list[str]] = {}
+    out = []
+    unknowns = ex.unknowns
+    for j, k in pairs:
+        var, i = unknowns[j]
+        key = (id(var), k)
+        if key not in cache:
+            cache[key] = _element_names(var, k)
+        out.append(cache[key][i])
+    return out
 
 
 def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
@@ -526,17 +561,23 @@ def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
     p = model.parameter_symbols
     p_names = [v.element(i) for v in model.parameters for i in range(v.size)]
     variables: dict[str, ca.SX] = {}
-    for j, (var, i) in enumerate(ex.unknowns):
-        for k in range(int(ex.d[j]) + 1):
-            variables[var.element(i, k)] = var.der(k)[i]
+    # whole vectors: one vertsplit per variable and order, names made in one comprehension
+    j0 = 0
+    for var in model.unknown_variables:
+        dj = ex.d[j0:j0 + var.size]
+        j0 += var.size
+        for k in range(int(dj.max()) + 1 if dj.size else 0):
+            elems = ca.vertsplit(var.der(k))
+            names = _element_names(var, k)
+            if bool(np.all(dj >= k)):
+                variables.update(zip(names, elems, strict=True))
+            else:
+                variables.update((names[i], elems[i]) for i in np.nonzero(dj >= k)[0])
     for var in model.controls:
         for k in range(ex.control_orders.get(var.name, 0) + 1):
-            s = var.der(k)
-            for i in range(var.size):
-                variables[var.element(i, k)] = s[i]
+            variables.update(zip(_element_names(var, k), ca.vertsplit(var.der(k)), strict=True))
     for var in model.parameters:
-        for i in range(var.size):
-            variables[var.element(i)] = var.sym[i]
+        variables.update(zip(_element_names(var, 0), ca.vertsplit(var.sym), strict=True))
     return ReducedDAE(
         t=model.t,
         x=x,

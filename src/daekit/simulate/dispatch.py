@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from ..wording import count
 from .idas import run_algebraic, run_idas
 from .inputs import InputError, InputSignal, resolve_params
 from .projection import DriftMonitor, Projector, default_drift_tol
@@ -102,7 +103,7 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndar
     except (TypeError, ValueError):
         raise InputError(
             f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an "
-            f"array of the {r.nx} states; got {type(init).__name__}"
+            f"array of the {count(r.nx, 'state')}; got {type(init).__name__}"
         ) from None
     if arr.size == r.nx:
         x0 = arr
@@ -112,7 +113,7 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndar
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
-        f"of the {r.nx} states; got {arr.size} numbers"
+        f"of the {count(r.nx, 'state')}; got {count(arr.size, 'number')}"
     )
 
 

@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from ..wording import count
+from .driver import Driver
 from .idas import run_algebraic, run_idas
 from .inputs import InputError, InputSignal, resolve_params
 from .projection import DriftMonitor, Projector, default_drift_tol
@@ -131,6 +132,7 @@ def simulate(
     poles=(-1.0, -1.0),
     drift_tol: float | None = None,
     monitors: Sequence = (),
+    project_output: bool = True,
     **options,
 ) -> Trajectory:
     """Simulate a reduced (index-1) DAE and return its :class:`Trajectory`.
@@ -157,7 +159,8 @@ def simulate(
         Drift control. ``"baumgarte"`` integrates ``daekit.baumgarte(r, poles)``;
         ``"projection"`` integrates in one IDAS run until ``max |invariant|`` exceeds
         ``drift_tol`` and then projects (sparse Gauss--Newton, in IDAS's error-weight metric)
-        onto ``{alg = 0, invariants = 0}`` and restarts (``stats["projections"]``);
+        onto ``{alg = 0, invariants = 0}`` and restarts (``stats["projections"]``), and
+        projects the recorded points (``project_output``);
         ``"dummy_derivatives"`` needs ``r`` from ``reduce_index(model,
         method="dummy_derivatives")`` and re-selects the states when the selection's pivot
         degrades (``stats["selection_switches"]``).
@@ -172,6 +175,11 @@ def simulate(
     drift_tol : float, optional
         For ``"projection"``: the largest ``|invariant|`` tolerated; default
         :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``.
+    project_output : bool
+        For ``"projection"``: also project the recorded output points onto the manifold
+        (without touching the integration, which projects only when ``drift_tol`` is crossed),
+        so the returned values satisfy the invariants to rounding (default True;
+        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had).
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
     **options
@@ -274,9 +282,24 @@ def simulate(
         if np.max(np.abs(inv0), initial=0.0) > tol:
             x0, z0, _ = proj(tg[0], x0, z0, U[0], pv)
         mon = DriftMonitor(proj, tol)
-        traj = run_idas(system, tg, x0, z0, pv, [mon, *monitors], progress, "projection")
-        extra = {"projections": proj.stats["projections"], "drift_tol": tol,
-                 "max_projection_correction": mon.max_correction}
+        res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
+                     label="projection").run()
+        nproj = proj.stats["projections"]
+        if project_output:
+            # the recorded rows onto the manifold too (read-only: the integration is not
+            # touched), so the results satisfy the invariants to rounding
+            for part in res.parts:
+                sy, ts, xs, zs = part
+                if ts:
+                    T = np.asarray(ts, float)
+                    Xo, Zo = proj.project_rows(T, np.asarray(xs, float).reshape(T.size, sy.nx),
+                                               np.asarray(zs, float).reshape(T.size, sy.nz),
+                                               sy.sig.values(T), pv)
+                    part[2][:], part[3][:] = list(Xo), list(Zo)
+        traj = res.trajectory()
+        extra = {"projections": nproj, "drift_tol": tol, "output_projected": bool(project_output),
+                 "max_projection_correction": mon.max_correction,
+                 "max_drift_integrated": mon.max_drift}
     else:
         traj = run_idas(system, tg, x0, z0, pv, list(monitors), progress, "simulate")
     traj.stats.update(extra)

@@ -32,7 +32,7 @@ import scipy.sparse.linalg as spla
 
 from ..errors import SimulationError
 from .driver import Action, Firing, Monitor
-from .system import to_scipy
+from .system import fast_call, to_scipy
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
 
@@ -77,7 +77,8 @@ class Projector:
 
     def __init__(self, r, weights=None) -> None:
         self.nx, self.nz = r.nx, r.nz
-        h = ca.vertcat(r.alg, r.invariants) if r.invariants.numel() else r.alg
+        alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+        h = ca.vertcat(alg, ca.vec(r.invariants)) if r.invariants.numel() else alg
         w = ca.vertcat(r.x, r.z)
         self.nh = int(h.numel())
         J = ca.jacobian(h, w)
@@ -150,6 +151,83 @@ class Projector:
         self.stats["projections"] += 1
         dx = float(np.max(np.abs(w[: self.nx] - w0[: self.nx]), initial=0.0))
         return w[: self.nx], w[self.nx:], dx
+
+
+    def project_rows(self, T, X, Z, U, p, iters: int = 4):
+        """Project many rows at once (the recorded output points): batched dense Newton on
+        the small KKT blocks where ``nx + nz + nh <= 96``, else row by row (sparse).
+
+        Returns ``(X, Z)``; rows that do not converge are left as they were."""
+        T = np.asarray(T, float).ravel()
+        X = np.array(X, dtype=float, copy=True)
+        Z = np.array(Z, dtype=float, copy=True)
+        N, nx, nz, nh = T.size, self.nx, self.nz, self.nh
+        n = nx + nz
+        if N == 0 or nh == 0:
+            return X, Z
+        if n + nh > 96:
+            for i in range(N):
+                try:
+                    X[i], Z[i], _ = self(T[i], X[i], Z[i], U[i], p)
+                except SimulationError:
+                    pass
+                self.stats["projections"] -= 1  # output projections are not counted
+            return X, Z
+        if getattr(self, "_dense", None) is None:
+            w = ca.SX.sym("w", n)
+            t, u, pp = ca.SX.sym("t"), ca.SX.sym("u", np.size(U[0])), ca.SX.sym("p", np.size(p))
+            h = self.fun(t, w, u, pp)
+            self._dense = ca.Function("proj_dense", [t, w, u, pp],
+                                      [h, ca.densify(ca.jacobian(h, w))])
+            self._maps = {}
+        m = N if N <= 64 else 1 << (N - 1).bit_length()
+        if m not in self._maps:
+            if len(self._maps) > 8:
+                self._maps.clear()
+            self._maps[m] = self._dense.map(m)
+        F = self._maps[m]
+
+        def pad(A):
+            A = np.asarray(A, float)
+            return A if A.shape[0] == m else np.concatenate(
+                [A, np.repeat(A[-1:], m - A.shape[0], axis=0)], axis=0)
+
+        W = pad(np.hstack([X, Z]))
+        Tp, Up = pad(T), pad(np.asarray(U, float).reshape(N, -1))
+        P = np.repeat(np.asarray(p, float).reshape(1, -1), m, axis=0)
+        ni, no = F.name_in(), F.name_out()
+        W0 = W.copy()
+        for _ in range(iters):
+            out = fast_call(F, {ni[0]: Tp, ni[1]: W, ni[2]: Up, ni[3]: P},
+                            {no[0]: (m, nh), no[1]: (m, n, nh)})
+            H = out[no[0]]
+            if not np.all(np.isfinite(H)) or np.max(np.abs(H)) < 1e-14 * (1 + np.max(np.abs(W))):
+                break
+            J = np.transpose(out[no[1]], (0, 2, 1))  # (m, nh, n)
+            D = np.zeros((m, n))
+            if self.rtol is not None:
+                wx = 1.0 / (self.atol + self.rtol * np.abs(W[:, :nx])) ** 2
+                D[:, :nx] = wx / np.max(wx, axis=1, keepdims=True, initial=1e-300)
+            else:
+                D[:, :nx] = self.weights
+            K = np.zeros((m, n + nh, n + nh))
+            idx = np.arange(n)
+            K[:, idx, idx] = D
+            K[:, :n, n:] = np.transpose(J, (0, 2, 1))
+            K[:, n:, :n] = J
+            rhs = np.zeros((m, n + nh))
+            rhs[:, n:] = -H
+            try:
+                sol = np.linalg.solve(K, rhs[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                break
+            if not np.all(np.isfinite(sol)):
+                break
+            W = W + sol[:, :n]
+        W = W[:N]
+        ok = np.all(np.isfinite(W), axis=1)
+        W[~ok] = W0[:N][~ok]
+        return W[:, :nx], W[:, nx:]
 
 
 class DriftMonitor(Monitor):

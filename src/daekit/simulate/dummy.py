@@ -135,13 +135,7 @@ class PivotMonitor(Monitor):
         lim = 1.0 / self._limit(rr)
         qp = state.get("q")
         tp = state.get("tq", -math.inf)
-        gap = self.check_dt or 0.0
-        last = seg.t.size - 1
-        rows = []
-        for j in range(1, seg.t.size):  # rows at least a check spacing apart (cost)
-            if seg.t[j] - tp >= gap or j == last:
-                rows.append(j)
-                tp = float(seg.t[j])
+        rows = [j for j in range(1, seg.t.size) if seg.check[j]]  # one batched evaluation
         rows = np.asarray(rows, dtype=int)
         q = 1.0 / conditions(rr, seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p)
         prev = np.concatenate([[qp if qp is not None else np.nan], q[:-1]])

@@ -31,7 +31,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from ..errors import SimulationError
-from .driver import Action, Firing, Monitor
+from .driver import Action, Firing, Monitor, Segment
 from .system import fast_call, to_scipy
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
@@ -230,6 +230,12 @@ class Projector:
         return W[:, :nx], W[:, nx:]
 
 
+def _rows(seg, rows):
+    """The segment restricted to some rows."""
+    return Segment(seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p, seg.output[rows],
+                   seg.system, seg.driver, seg.check[rows])
+
+
 class DriftMonitor(Monitor):
     """Fires when ``max |invariant|`` exceeds ``tol``; acts by projecting (see the module doc).
 
@@ -261,16 +267,18 @@ class DriftMonitor(Monitor):
         return np.max(np.abs(inv), axis=1, initial=0.0)
 
     def check(self, seg, state):
-        d = self._drift(seg)
+        rows = np.nonzero(seg.check)[0]  # check rows only: the same on every output grid
+        d = self._drift(seg.tail(0) if rows.size == seg.t.size else _rows(seg, rows))
         bad = np.nonzero(d[1:] > self.tol)[0]
         if bad.size == 0:
             self.max_drift = max(self.max_drift, float(np.max(d, initial=0.0)))
             self._end = (float(seg.t[0]), float(seg.t[-1]), float(d[-1]))
             return None
-        i = int(bad[0])  # rows 0..i within the tolerance, row i + 1 beyond it
-        self.max_drift = max(self.max_drift, float(np.max(d[: i + 1], initial=0.0)))
-        self._cross = float(seg.t[i + 1])
-        if i > 0:
+        b = int(bad[0])  # check rows 0..b within the tolerance, row b + 1 beyond it
+        i, i1 = int(rows[b]), int(rows[b + 1])
+        self.max_drift = max(self.max_drift, float(np.max(d[: b + 1], initial=0.0)))
+        self._cross = float(seg.t[i1])
+        if b > 0:
             return Firing(float(seg.t[i]), seg.X[i], seg.Z[i], index=i)
         ev = seg.system.evaluator
         half = 0.5 * self.tol
@@ -282,7 +290,8 @@ class DriftMonitor(Monitor):
 
         if g(seg.t[0], seg.X[0], seg.Z[0], seg.U[0]) >= 0:  # not even the start: project it
             return Firing(float(seg.t[0]), seg.X[0], seg.Z[0], index=0)
-        t, x, z = seg.driver.locate(seg, 0, g, tol=1e-6 * (seg.t[1] - seg.t[0]))
+        sub = _rows(seg, np.array([0, i1]))
+        t, x, z = seg.driver.locate(sub, 0, g, tol=1e-6 * (seg.t[i1] - seg.t[0]))
         return Firing(t, x, z)
 
     def _project(self, driver, t, x, z):

@@ -8,7 +8,8 @@ output points inside it, and ``checks`` evenly spaced check points). When one fi
 driver keeps the rows before the firing time, lets the monitor *act* (project, re-select the
 states, reset a state, stop), and starts the next segment there. A restart of IDAS happens
 only at such an event -- and at the end of a segment in which nothing fired, whose length
-doubles every time, so there are only logarithmically many of those. After an event the next
+quadruples every time (the first is a quarter of the span), so there are only
+logarithmically many of those. After an event the next
 segment is 1.5 times the time since the previous restart (events that recur, like drift
 crossing a tolerance, then cost little re-integration).
 
@@ -416,7 +417,7 @@ class Driver:
         result.parts.append(cur)
         states = [m.init(self, t, x, z) for m in self.monitors]
         k = 1
-        L = self.span if not self.monitors else self.span / 16
+        L = self.span if not self.monitors else self.span / 4
         bar = Progress(self.progress, tg[0], tg[-1], self.label)
         w0 = time.perf_counter()
         last_fail_t = None
@@ -461,7 +462,8 @@ class Driver:
                         t=float(exc.t), trajectory=partial,
                     ) from None
                 last_fail_t = None
-                U = system.sig.values(grid)
+                # inputs on the rows only for the monitors (a plain run does not need them)
+                U = system.sig.values(grid) if self.monitors else np.zeros((grid.size, 0))
                 seg = Segment(grid, X, Z, U, self.pv, is_out, system, self, is_chk)
                 fired = self._earliest(seg, states)
                 if fired is None:
@@ -483,7 +485,7 @@ class Driver:
                                     result.events.append((t, act.label))
                                 system, x, z, cur = self._apply(act, system, t, x, z, result,
                                                                 cur)
-                    L = self._next_length(states, 2.0 * L)
+                    L = self._next_length(states, 4.0 * L)
                     continue
                 mi, f, act = fired
                 te = float(f.t)
@@ -563,14 +565,12 @@ class Driver:
 
     def _record(self, cur, seg: Segment, upto: int, inclusive: bool, before: float | None = None):
         """Keep the output rows of ``seg`` up to row ``upto`` (rows before ``before`` only)."""
-        for i in range(1, upto + 1):
-            if not seg.output[i]:
-                continue
-            if before is not None and seg.t[i] >= before:
-                continue
-            cur[1].append(float(seg.t[i]))
-            cur[2].append(seg.X[i].copy())
-            cur[3].append(seg.Z[i].copy())
+        sel = np.nonzero(seg.output[1: upto + 1])[0] + 1
+        if before is not None:
+            sel = sel[seg.t[sel] < before]
+        cur[1].extend(seg.t[sel].tolist())
+        cur[2].extend(seg.X[sel])  # row views of arrays no one writes to
+        cur[3].extend(seg.Z[sel])
 
     def _apply(self, act: Action, system: System, t: float, x, z, result: DriverResult, cur):
         x = np.asarray(act.x if act.x is not None else x, dtype=float).ravel().copy()

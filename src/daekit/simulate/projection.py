@@ -28,11 +28,12 @@ import math
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import SimulationError
 from .driver import Action, Firing, Monitor, Segment
-from .system import fast_call, to_scipy
+from .system import fast_call
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
 
@@ -93,6 +94,8 @@ class Projector:
         self.weights = np.ones(self.nx) if weights is None else np.asarray(weights, float)
         self.rtol = self.atol = None
         self.stats = {"projections": 0, "projection_iterations": 0}
+        self._ksp = None
+        self._lu = None
 
     def set_tolerances(self, rtol: float, atol: float) -> None:
         """Weight ``x_i`` by ``1 / (atol + rtol |x_i|)^2`` at the point projected."""
@@ -104,7 +107,31 @@ class Projector:
         wx = 1.0 / (self.atol + self.rtol * np.abs(x)) ** 2
         return wx / np.max(wx, initial=1.0)
 
-    def __call__(self, t, x, z, u, p, tol: float = 1e-13, max_iter: int = 20):
+    def _h(self, t, w, u, p) -> np.ndarray:
+        return np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
+
+    def _factor(self, t, w, u, p, dmet):
+        """Sparse LU of the KKT matrix at ``w`` (nonzeros straight into NumPy)."""
+        F = self.kkt
+        if self._ksp is None:
+            sp_ = F.sparsity_out(1)
+            colind, row = sp_.get_ccs()
+            self._ksp = (np.asarray(row), np.asarray(colind), sp_.shape)
+        row, colind, shape = self._ksp
+        for reg in (0.0, 1e-12, 1e-8):
+            out = fast_call(F, dict(zip(F.name_in(), [np.atleast_1d(float(t)), w, u, p, dmet,
+                                                      np.atleast_1d(reg)], strict=True)),
+                            {F.name_out(1): (F.nnz_out(1),)})
+            K = sp.csc_matrix((out[F.name_out(1)], row, colind), shape=shape)
+            try:
+                with np.errstate(all="ignore"):
+                    return spla.splu(K)
+            except RuntimeError:
+                continue
+        return None
+
+    def __call__(self, t, x, z, u, p, tol: float = 1e-13, max_iter: int = 20,
+                 reuse: bool = False):
         """Return ``(x, z, max |dx|)``; raises :class:`SimulationError` if it cannot converge."""
         w = np.concatenate([np.asarray(x, float).ravel(), np.asarray(z, float).ravel()])
         w0 = w.copy()
@@ -113,34 +140,26 @@ class Projector:
         dmet = self._metric(w[: self.nx])
         res = np.inf
         n = w.size
-        lu = None
-        for it in range(max_iter):
-            if lu is None or it % 3 == 0:  # simplified Newton: refactor every third iteration
-                lu = None
-                for reg in (0.0, 1e-12, 1e-8):
-                    hv, K = self.kkt(t, w, u, p, dmet, reg)
-                    try:
-                        with np.errstate(all="ignore"):
-                            lu = spla.splu(to_scipy(K))
-                        break
-                    except RuntimeError:
-                        continue
-                hv = np.asarray(hv, dtype=float).ravel()
-            else:
-                hv = np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
+        lu = self._lu if reuse else None  # simplified Newton: an LU from a nearby point
+        last = np.inf
+        for _ in range(max_iter):
+            hv = self._h(t, w, u, p)
             res = float(np.max(np.abs(hv), initial=0.0))
             if not np.isfinite(res) or res <= tol * (1.0 + float(np.max(np.abs(w), initial=0.0))):
                 break
-            if lu is None:
-                break
+            if lu is None or res > 0.25 * last:  # (re)factor when convergence is slow
+                lu = self._factor(t, w, u, p, dmet)
+                if lu is None:
+                    break
+            last = res
             sol = lu.solve(np.concatenate([np.zeros(n), -hv]))
             if not np.all(np.isfinite(sol)):
                 break
             w = w + sol[:n]
             self.stats["projection_iterations"] += 1
         else:
-            hv = np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
-            res = float(np.max(np.abs(hv), initial=0.0))
+            res = float(np.max(np.abs(self._h(t, w, u, p)), initial=0.0))
+        self._lu = lu
         if not np.isfinite(res) or res > 1e-8 * (1.0 + float(np.max(np.abs(w), initial=0.0))):
             raise SimulationError(
                 f"projection onto the invariants failed at t = {t:g} (residual {res:.3g}); the "
@@ -168,7 +187,7 @@ class Projector:
         if n + nh > 96:
             for i in range(N):
                 try:
-                    X[i], Z[i], _ = self(T[i], X[i], Z[i], U[i], p)
+                    X[i], Z[i], _ = self(T[i], X[i], Z[i], U[i], p, reuse=i > 0)
                 except SimulationError:
                     pass
                 self.stats["projections"] -= 1  # output projections are not counted

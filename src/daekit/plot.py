@@ -20,8 +20,10 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["plot_trajectory", "plot_invariants", "plot_structure", "invariant_order",
            "REMEDY_COLORS", "remedy_color", "Plane", "best_plane", "plot_in_plane",
@@ -163,7 +165,12 @@ class Plane:
     """The plane a 3D path lies in (:func:`best_plane`): ``project(points)`` gives in-plane
     coordinates along ``basis`` (2 x 3, orthonormal) from ``origin``; ``normal``; ``labels`` of
     the two in-plane axes; ``out_of_plane`` the largest distance of a point from the plane;
-    ``name`` e.g. ``"y = 0"`` for a coordinate plane."""
+    ``name`` e.g. ``"y = 0"`` for a coordinate plane.
+
+    >>> pl = best_plane([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> pl.name, pl.project([[2.0, 3.0, 0.0]]).tolist()
+    ('z = 0', [[2.0, 3.0]])
+    """
 
     origin: np.ndarray
     basis: np.ndarray
@@ -172,12 +179,12 @@ class Plane:
     out_of_plane: float
     name: str
 
-    def project(self, points) -> np.ndarray:
+    def project(self, points: ArrayLike) -> np.ndarray:
         """In-plane coordinates ``(N, 2)`` of points ``(N, 3)``."""
         return (np.asarray(points, dtype=float) - self.origin) @ self.basis.T
 
 
-def best_plane(points, names: tuple[str, str, str] = ("x", "y", "z"),
+def best_plane(points: ArrayLike, names: tuple[str, str, str] = ("x", "y", "z"),
                snap: float = 1e-6) -> Plane:
     """The least-squares plane through 3D ``points`` (rows), from their singular value
     decomposition. When its normal is within ``snap`` (radians, about) of a coordinate axis,
@@ -214,8 +221,8 @@ def best_plane(points, names: tuple[str, str, str] = ("x", "y", "z"),
                  "normal (" + ", ".join(f"{c:.2f}" for c in normal) + ")")
 
 
-def plot_in_plane(points, ax=None, unit: str = "m", names: tuple[str, str, str] = ("x", "y", "z"),
-                  **line_kw):
+def plot_in_plane(points: ArrayLike, ax: Any = None, unit: str = "m",
+                  names: tuple[str, str, str] = ("x", "y", "z"), **line_kw: Any) -> tuple[Any, Plane]:
     """Draw a 3D path in the plane it lies in (:func:`best_plane`), with equal scales.
 
     Returns ``(figure, plane)``; project other points with ``plane.project``.

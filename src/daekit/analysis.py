@@ -37,6 +37,7 @@ from .errors import ModelError
 from .model import Model
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
+from .threads import limit_blas_threads
 from .wording import count
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
@@ -720,6 +721,7 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
     return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
 
 
+@limit_blas_threads
 def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
     analysis is trustworthy here, the differential index, the DOF, and the easy test.

@@ -25,7 +25,7 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
     >>> from daekit.reduction import reduce_index
     >>> text = format_reduced(reduce_index(dk.examples.pendulum_planar()))
     >>> print(text.splitlines()[0])
-    pendulum_planar reduced by differentiate: 4 states, 3 algebraic unknowns, 2 invariants
+    pendulum_planar reduced by differentiate: 4 states, 1 algebraic unknown, 2 invariants
     >>> "0 = d2/dt2 rod:" in text
     True
     """

@@ -515,8 +515,8 @@ def test_guess_simulation_runs_the_whole_free_swing():
     from daekit.ocp.guess import make_guess
 
     ocp = pendulum3d_rest_to_rest()
-    ocp._prepare()
-    g = make_guess(ocp, None)
+    prob = ocp.compile()
+    g = make_guess(prob, None)
     assert "stopped" not in g.note
     t = np.linspace(0.0, 2.0, 7)
     X = g.fun(t)[0]
@@ -526,7 +526,7 @@ def test_guess_simulation_runs_the_whole_free_swing():
     # the guess is interpolated linearly between collocation points: O(h^2) ~ 1e-3
     assert np.max(np.abs(X[0] - np.sin(th))) < 3e-3
     assert np.max(np.abs(X[2] + np.cos(th))) < 3e-3
-    exact_T = make_guess(ocp, None).fun(np.array([2.0]))[0][:, 0]
+    exact_T = make_guess(prob, None).fun(np.array([2.0]))[0][:, 0]
     assert exact_T[0] == pytest.approx(np.sin(th[-1]), abs=1e-4)  # a node: IDAS accuracy
 
 
@@ -577,8 +577,7 @@ def test_failed_guess_simulation_falls_back_to_a_consistent_final_point(monkeypa
 
     monkeypatch.setattr(guess_mod._GuessSimulator, "interval", failing)
     ocp = pendulum3d_rest_to_rest()
-    ocp._prepare()
-    g = guess_mod.make_guess(ocp, None)
+    g = guess_mod.make_guess(ocp.compile(), None)
     assert "failed at t = 0.2667" in g.note and "consistent final point" in g.note
     xT = g.fun(np.array([2.0]))[0][:, 0]
     assert np.max(np.abs(xT - [-0.6, 0.0, -0.8, 0.0, 0.0, 0.0])) < 1e-8

@@ -15,12 +15,11 @@ time: the algebraic unknowns ``z_0`` (with ``alg = 0``), where the invariants ar
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import casadi as ca
 import numpy as np
 
 from .nlp import NLPBuilder
+from .transcription import Transcription, finish, params_and_time
 
 __all__ = ["radau_coefficients", "transcribe", "Transcription"]
 
@@ -58,36 +57,24 @@ def radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     return tau, C, b, e0
 
 
-@dataclass
-class Transcription:
-    builder: NLPBuilder
-    J: ca.SX
-    grid: ca.Function  # V -> (tfrac (1 x Nt), X, Z, W, T, P)
-    ends: ca.Function  # V -> (v0, vT, P, T)
-    method: str
-    nt: int
-    hessian_exact: bool = True
-    controls: ca.Function | None = None  # V -> (nw, N * ncoef): the control of each interval
-    node_index: list[int] | None = None  # grid column of each interval boundary t_k
-    ncoef: int = 1  # control values per interval (1: constant, d: polynomial)
-
-
-def transcribe(ocp, guess, T_guess: float | None = None,
-                p_guess=None) -> Transcription:
-    """Build the collocation NLP of ``ocp`` (an :class:`daekit.ocp.OCP` after preparation);
+def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
+               selectors=(), pins=()) -> Transcription:
+    """Build the collocation NLP of ``prob`` (a :class:`~daekit.ocp.compiled.Problem`) with the
+    boundary conditions ``kept`` (indices) as equalities and the branch ``selectors``;
     ``guess(t)`` gives ``(X, Z, W)`` at times ``t`` of a horizon ``T_guess``."""
-    a = ocp._aug
-    N, d = ocp.intervals, ocp.degree
+    a = prob.aug
+    N, d = prob.intervals, prob.degree
     tau, C, b, e0 = radau_coefficients(d)
     nx, nz, nw = a.nx, a.nz, a.nw
     B = NLPBuilder(ca.SX)
-    f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, ocp._lagrange])
+    f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, prob.lagrange])
 
     # parameters and final time
-    Tg = ocp._T_guess if T_guess is None else float(T_guess)
-    P, T = _params_and_time(ocp, B, T_guess=Tg, p_guess=p_guess)
+    Tg = prob.T_guess if T_guess is None else float(T_guess)
+    P, T = params_and_time(prob, B, T_guess=Tg, p_guess=p_guess)
     h = T / N
-    xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
+    xlb, xub, zlb, zub, wlb, wub = prob.simple_bounds()
+    an = [f"equation {n!r}" for n in prob.alg_names]
 
     def tv(frac):  # times of the guess
         return np.atleast_1d(np.asarray(frac, float)) * Tg
@@ -103,7 +90,7 @@ def transcribe(ocp, guess, T_guess: float | None = None,
     for k in range(N):
         fr_k = [(k + tau[j]) / N for j in range(1, d + 1)]
         gx, gz, gw = guess(tv(fr_k))
-        if ocp.control_mode == "constant":
+        if prob.control_mode == "constant":
             Wk, _ = B.var(f"w_{k}", nw, wlb, wub, gw.mean(axis=1) if nw else 0.0)
             Wc = [Wk] * d
             Wint.append(Wk)
@@ -111,18 +98,18 @@ def transcribe(ocp, guess, T_guess: float | None = None,
             Wc = [B.var(f"w_{k}_{j}", nw, wlb, wub, gw[:, j - 1])[0] for j in range(1, d + 1)]
             Wint.extend(Wc)
         if k == 0:
-            W0 = Wc[0] if ocp.control_mode == "constant" else sum(
-                e0[j] * Wc[j] for j in range(d)
+            W0 = Wc[0] if prob.control_mode == "constant" else sum(
+                float(e0[j]) * Wc[j] for j in range(d)
             )
             Wgrid.append(W0)
-            B.con(f(0.0, X0, Z0, W0, P)[1], 0.0, 0.0, "algebraic equations", 0.0, "alg")
+            B.con(f(0.0, X0, Z0, W0, P)[1], 0.0, 0.0, "algebraic equations", 0.0, "alg", an)
             if a.inv.numel():
                 inv0 = ca.substitute(
                     [a.inv], [ca.vertcat(a.t, a.x, a.z, a.w, a.p)],
                     [ca.vertcat(0.0, X0, Z0, W0, P)],
                 )[0]
                 B.con(inv0, 0.0, 0.0, "invariants", 0.0, "invariant", list(a.inv_names))
-            ocp._add_path(B, 0.0, X0, Z0, W0, P, 0.0)
+            prob.add_path(B, 0.0, X0, Z0, W0, P, 0.0)
         Xs = [Xk]
         Zs = []
         for j in range(1, d + 1):
@@ -133,57 +120,17 @@ def transcribe(ocp, guess, T_guess: float | None = None,
         for j in range(1, d + 1):
             tkj = h * (k + tau[j])
             ode, alg, L = f(tkj, Xs[j], Zs[j - 1], Wc[j - 1], P)
-            xp = sum(C[r, j] * Xs[r] for r in range(d + 1))
+            xp = sum(float(C[r, j]) * Xs[r] for r in range(d + 1))
             B.con(xp - h * ode, 0.0, 0.0, f"dynamics on interval {k}", fr_k[j - 1], "dynamics")
-            B.con(alg, 0.0, 0.0, "algebraic equations", fr_k[j - 1], "alg")
-            if ocp._has_lagrange:
-                J = J + h * b[j - 1] * L
-            ocp._add_path(B, tkj, Xs[j], Zs[j - 1], Wc[j - 1], P, fr_k[j - 1])
+            B.con(alg, 0.0, 0.0, "algebraic equations", fr_k[j - 1], "alg", an)
+            if prob.has_lagrange:
+                J = J + h * float(b[j - 1]) * L
+            prob.add_path(B, tkj, Xs[j], Zs[j - 1], Wc[j - 1], P, fr_k[j - 1])
             Xgrid.append(Xs[j])
             Zgrid.append(Zs[j - 1])
             Wgrid.append(Wc[j - 1])
             fr.append(fr_k[j - 1])
         Xk = Xs[d]
-    XT, ZT, WT = Xgrid[-1], Zgrid[-1], Wgrid[-1]
-    if ocp._has_mayer:
-        J = J + ocp._mayer_fun(T, XT, ZT, WT, P)
-    v0 = ca.vertcat(X0, Z0, W0)
-    vT = ca.vertcat(XT, ZT, WT)
-    ocp._add_boundary(B, v0, vT, P, T)
-    V = B.V()
-    grid = ca.Function(
-        "grid", [V],
-        [ca.DM(fr).T, ca.horzcat(*Xgrid), ca.horzcat(*Zgrid), ca.horzcat(*Wgrid), T, P],
-    )
-    ends = ca.Function("ends", [V], [v0, vT, P, T])
-    controls = ca.Function("controls", [V], [ca.horzcat(*Wint)])
-    ncoef = 1 if ocp.control_mode == "constant" else d
-    return Transcription(B, ca.SX(J), grid, ends, f"Radau IIA collocation, degree {d}", len(fr),
-                         controls=controls, node_index=[k * d for k in range(N + 1)],
-                         ncoef=ncoef)
-
-
-def _params_and_time(ocp, B: NLPBuilder, T_guess: float | None = None, p_guess=None):
-    """Parameters (free ones as decision variables, started at ``p_guess`` when given) and the
-    final time (a decision variable when free, started at ``T_guess`` clipped to its bounds)."""
-    a = ocp._aug
-    S = B.sym
-    entries = []
-    for i, nm in enumerate(a.p_names):
-        if nm in ocp._free_params:
-            lo, hi, g = ocp._free_params[nm]
-            if p_guess is not None and np.isfinite(p_guess[i]):
-                g = float(np.clip(p_guess[i], lo, hi))
-            v, _ = B.var(f"param_{nm}", 1, lo, hi, g)
-            entries.append(v)
-        else:
-            entries.append(S(float(ocp._p_values[i])))
-    P = ca.vertcat(*entries) if entries else S(0, 1)
-    if ocp._T_free is not None:
-        lo, hi, g = ocp._T_free
-        if T_guess is not None:
-            g = float(np.clip(T_guess, lo, hi))
-        T, _ = B.var("T", 1, lo, hi, g)
-    else:
-        T = S(ocp._T_fixed)
-    return P, T
+    ncoef = 1 if prob.control_mode == "constant" else d
+    return finish(prob, B, ca.SX(J), P, T, fr, Xgrid, Zgrid, Wgrid, Wint, kept, selectors, pins,
+                  f"Radau IIA collocation, degree {d}", [k * d for k in range(N + 1)], ncoef)

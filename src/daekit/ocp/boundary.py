@@ -72,7 +72,11 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     n = v0.size
     a0, aT, res_a = project_ends(prob.ends_fun, v0, vT, p, T)
     rng = np.random.default_rng(7)
-    man = _rows_of(prob.ends_fun, list(range(2 * nman)))
+    # the neighbourhood: points of the manifold near a (where the conditions need not hold);
+    # periodic conditions are redundant only where x(T) = x(0), so for them the points
+    # are taken on the set where all the conditions hold (their rank is constant there)
+    man = (prob.ends_fun if "periodic" in prob.bc_kinds
+           else _rows_of(prob.ends_fun, list(range(2 * nman))))
     y = np.concatenate([a0, aT])
     sc = np.maximum(1.0, np.abs(y))
     generic = []
@@ -276,8 +280,7 @@ def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
             "where the imposed conditions hold there are other branches on which "
             + ", ".join(ba.labels[i] for i, _, _ in ba.selectors)
             + " do" + ("es" if len(ba.selectors) == 1 else "")
-            + " not hold: kept as inequalities |c| <= "
-            + ", ".join(f"{hi:.3g}" for _, _, hi in ba.selectors)
-            + " (half the distance to the nearest other branch), which exclude those branches"
-            " and are inactive at the solution"
+            + " not hold (they select a branch, |c| up to "
+            + ", ".join(f"{2 * hi:.3g}" for _, _, hi in ba.selectors)
+            + " elsewhere): checked at the solution and imposed by a re-solve if violated"
         )

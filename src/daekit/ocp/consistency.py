@@ -316,6 +316,8 @@ def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
 
     r0, J0 = fun(y[:n], y[n:], p, T)
     r0 = np.asarray(r0, float).ravel()
+    if r0.size == 0:
+        return y[:n], y[n:], 0.0
     J0 = np.asarray(J0, float).reshape(r0.size, -1)
     nrm = np.linalg.norm(J0, axis=1)
     # rows scaled by their Jacobian's norm at the start: a residual is then a distance
@@ -324,7 +326,7 @@ def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
     def ev(y):
         r, J = fun(y[:n], y[n:], p, T)
         r = np.asarray(r, float).ravel()
-        return sc * r, sc[:, None] * np.asarray(J, float).reshape(r.size, -1)
+        return sc * r, sc[:, None] * np.asarray(J, float).reshape(r.size, 2 * n)
 
     r, J = ev(y)
     for _ in range(max_iter):

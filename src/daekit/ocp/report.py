@@ -101,7 +101,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
             )
         elif ba.dropped:
             sel = {i for i, _, _ in ba.selectors}
-            dropped = [ba.labels[i] for i in ba.dropped if i not in sel]
+            dropped = [ba.labels[i] for i in ba.dropped]
             v0, vT, P, TT = (np.asarray(x) for x in tr.ends(V))
             res = np.asarray(bres).ravel()
             worst = max(abs(res[i]) for i in ba.dropped)
@@ -112,8 +112,8 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
                 "dynamics keep them). Imposed: "
                 f"{_fmt_list([ba.labels[i] for i in kept])}. Dropped as implied by those and "
                 f"the invariants: {_fmt_list(dropped) or 'none'}"
-                + (f"; kept as branch-selecting inequalities: "
-                   f"{_fmt_list([ba.labels[i] for i in sorted(sel)])}" if sel else "")
+                + (f" (branch-selecting, checked at the solution: "
+                   f"{_fmt_list([ba.labels[i] for i in sorted(sel)])})" if sel else "")
                 + ("." if ba.proven else
                    f"; their largest residual at the solution is {worst:.2e}.")
             )

@@ -43,7 +43,10 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float) -> OCP
 
     n_bc = len(prob.conditions)
     if redundancy == "drop":
-        kept, selectors, pins = list(ba.kept), list(ba.selectors), list(ba.pins)
+        # branch-selecting conditions are not imposed as inequalities (measured: they slowed
+        # or broke IPOPT on the cart-pole); they are checked at the solution and imposed by
+        # the re-solve when violated (daekit.ocp.resolve)
+        kept, selectors, pins = list(ba.kept), [], list(ba.pins)
     else:
         kept, selectors, pins = list(range(n_bc)), [], []
     if prob.method == "collocation":

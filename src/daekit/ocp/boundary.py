@@ -75,8 +75,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     # the neighbourhood: points of the manifold near a (where the conditions need not hold);
     # periodic conditions are redundant only where x(T) = x(0), so for them the points
     # are taken on the set where all the conditions hold (their rank is constant there)
-    man = (prob.ends_fun if "periodic" in prob.bc_kinds
-           else _rows_of(prob.ends_fun, list(range(2 * nman))))
+    man = prob.ends_fun
     y = np.concatenate([a0, aT])
     sc = np.maximum(1.0, np.abs(y))
     generic = []
@@ -94,7 +93,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     probe = analyze_boundary(labels, *at_a, preference=prob.bc_pref, others=at_b,
                              forced=list(forced))
     r_a, r_gen = probe.ranks[0], max(probe.ranks[1:], default=probe.ranks[0])
-    degenerate = r_a < r_gen
+    degenerate = False
     if degenerate:
         # choose where the rank is the generic one, preferring rows regular at a too
         ba = analyze_boundary(labels, *at_b[int(np.argmax(probe.ranks[1:]))],
@@ -109,7 +108,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     ba.manifold_dims = (ba.manifold_dims[0] - a.nw, ba.manifold_dims[1] - a.nw)
     ba.notes.append(
         "rank evaluated at the guess's end points projected onto the manifold and the given "
-        f"conditions (residual {res_a:.1e}): {r_a}, and at random points of the manifold "
+        f"conditions (residual {res_a:.1e}): {r_a}, and at random points of that set "
         f"nearby: {r_gen}"
     )
     if degenerate:
@@ -134,8 +133,10 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
                 f"guess (least-squares residual {res_a:.2e}); IPOPT is run all the same"
             )
     _bound_conflicts(prob, ba)
-    if degenerate and not ba.proven and "periodic" not in prob.bc_kinds:
+    if not ba.proven and "periodic" not in prob.bc_kinds:
         _pin_isolated_ends(prob, ba, (a0, aT), at_a, at_b, p, T, nman, rng)
+        if ba.pins:
+            ba.degenerate = True
     if ba.dropped and not ba.proven:
         _branch_selectors(prob, ba, (a0, aT), (v0, vT), p, T, nman, scale, rng)
     return ba
@@ -182,8 +183,9 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
             A = equilibrate(np.asarray(J[0], float)[rows][:, cols]) @ null_basis(J[1 + e])
             return int(np.sum(np.linalg.svd(A, compute_uv=False) > 1e-7)) if A.size else 0
 
-        if rank(at_a) >= max(rank(J) for J in at_b):
-            continue
+        dim = null_basis(at_a[1 + e]).shape[1] - a.nw
+        if rank(at_a) >= dim:
+            continue  # the end's conditions fix the point regularly
         rows = list(range(e * nman, (e + 1) * nman)) + [2 * nman + i for i in idx]
         sub = _rows_of(prob.ends_fun, rows)
         y = np.concatenate(a_pt)

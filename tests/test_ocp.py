@@ -725,3 +725,139 @@ def test_condition_contradicting_the_invariants_alone_is_not_vetoed_but_named():
     assert "WARNING: near the guess, the boundary conditions final p[0]" in sol.report
     assert "invariant 'rod'" in sol.report and "not a proof" in sol.report
     assert "algebraic equation" not in sol.report and "alg[" not in sol.report
+
+
+# ---------------------------------------------------------------- issue 9: hard classics
+def betts_pendulum(initial_all=True):
+    """Betts (2010) problem 10.103 from the index-3 Cartesian model as written."""
+    m = dk.Model("betts")
+    x, y = m.state("x"), m.state("y")
+    lam, u = m.algebraic("lam"), m.control("u")
+    m.equation(m.der(x, 2) - (-2 * lam * x + u * y), name="newton_x")
+    m.equation(m.der(y, 2) - (-9.81 - 2 * lam * y - u * x), name="newton_y")
+    m.equation(x**2 + y**2 - 1, name="rod")
+    ocp = OCP(m, t_final=3.0, intervals=100, degree=3, controls="polynomial")
+    ocp.minimize(integral=u**2)
+    ocp.initial({"x": 1, "y": 0, "der(x)": 0, "der(y)": 0} if initial_all
+                else {"x": 1, "der(y)": 0})
+    ocp.final({"x": 0, "der(x)": 0})
+    ocp.bound("lam", -1, 15)
+    for n in ("x", "y", "der(x)", "der(y)"):
+        ocp.bound(n, -5, 5)
+    return ocp
+
+
+@pytest.mark.parametrize("initial_all", [True, False])
+def test_betts_pendulum_from_the_index3_model(initial_all):
+    sol = betts_pendulum(initial_all).solve()
+    assert sol.success, sol.report
+    assert sol.objective == pytest.approx(12.8738889, abs=1e-4)  # independent angle form
+    assert sol["y"][-1] == pytest.approx(-1.0, abs=1e-6)  # hanging at the end
+    assert "IPOPT: Solve_Succeeded" in sol.report
+
+
+def test_poor_least_squares_start_is_not_a_veto():
+    """From Betts' default guess the end-point least-squares check cannot meet final x = 0
+    (residual ~0.18: a local minimum); the problem is feasible, IPOPT runs and succeeds."""
+    from daekit.ocp.guess import make_guess
+    from daekit.ocp.report import endpoint_checks
+
+    ocp = betts_pendulum()
+    prob = ocp.compile()
+    msgs = endpoint_checks(prob, make_guess(prob, None))
+    assert msgs and "final x" in msgs[0] and "not a proof" in msgs[0]
+    sol = ocp.solve()
+    assert sol.success and sol.stats["iter_count"] > 0
+
+
+@pytest.mark.parametrize("k", [1e4, 1e8])
+def test_badly_scaled_algebraic_equation_solves(k):
+    m = dk.Model("scaled")
+    x, z, u = m.state("x"), m.algebraic("z"), m.control("u")
+    m.equation(m.der(x) - z, name="ode")
+    m.equation(z + k * x - u, name="alg")
+    ocp = OCP(m, t_final=1.0, intervals=20)
+    ocp.minimize(integral=u**2 + x**2).initial({"x": 1})
+    sol = ocp.solve()
+    assert sol.success, sol.report
+    assert sol["x"][0] == pytest.approx(1.0, abs=1e-9)
+    # x' = -k x + u: the optimum is about 1/(2k) (Riccati); Radau's stiff decay misses the
+    # initial layer between the collocation points, so the discrete one is smaller, not larger
+    assert 0 <= sol.objective < 1 / k
+    assert "CONTRADICTORY" not in sol.report and "INFEASIBLE" not in sol.report
+
+
+def test_nan_boundary_value_raises_at_once():
+    m, s, u = _double_integrator()
+    ocp = OCP(m, t_final=1.0, intervals=5)
+    with pytest.raises(OCPError, match="finite"):
+        ocp.initial({"s": float("nan")})
+
+
+CP = {"M": 1.0, "m": 0.3, "L": 0.5, "g": 9.81, "T": 2.0, "N": 50}
+
+
+def cartpole_ocp(full: bool):
+    """Cart (position s) and pole tip p in Cartesian coordinates, one rod, force F on the cart,
+    from hanging at rest to upright at rest, min int F^2."""
+    M, mp, L, g = CP["M"], CP["m"], CP["L"], CP["g"]
+    m = dk.Model("cartpole")
+    s, p = m.state("s"), m.state("p", 2)
+    lam, F = m.algebraic("lam"), m.control("F")
+    r = ca.vertcat(p[0] - s, p[1])
+    m.equation(M * m.der(s, 2) - (F + 2 * lam * r[0]), name="cart")
+    m.equation(mp * m.der(p, 2) - (-mp * ca.vertcat(0, g) - 2 * lam * r), name="tip")
+    m.equation(ca.dot(r, r) - L**2, name="rod")
+    ocp = OCP(m, t_final=CP["T"], intervals=CP["N"], degree=3)
+    ocp.minimize(integral=F**2)
+    ocp.initial({"s": 0, "p": [0, -L], "der(s)": 0, "der(p)": [0, 0]})
+    if full:
+        ocp.final({"s": 0, "p": [0, L], "der(s)": 0, "der(p)": [0, 0]})
+    else:
+        ocp.final({"s": 0, "p[1]": L, "der(s)": 0, "der(p)": [0, 0]})
+    return ocp
+
+
+def cartpole_minimal_coordinates() -> float:
+    """The same problem in (s, th) (th = 0 hanging), Radau IIA degree 3 on the same N
+    intervals with piecewise constant F, written by hand in casadi.Opti."""
+    M, mp, L, g, T, N, d = CP["M"], CP["m"], CP["L"], CP["g"], CP["T"], CP["N"], 3
+    tau, C, b, _ = radau_coefficients(d)
+    q = ca.SX.sym("q", 4)
+    Fs = ca.SX.sym("F")
+    th, ds, dth = q[1], q[2], q[3]
+    Mm = ca.vertcat(ca.horzcat(M + mp, mp * L * ca.cos(th)),
+                    ca.horzcat(mp * L * ca.cos(th), mp * L**2))
+    rhs = ca.vertcat(Fs + mp * L * ca.sin(th) * dth**2, -mp * g * L * ca.sin(th))
+    acc = ca.solve(Mm, rhs)
+    f = ca.Function("f", [q, Fs], [ca.vertcat(ds, dth, acc)])
+    opti = ca.Opti()
+    X = opti.variable(4, N * d + 1)
+    U = opti.variable(1, N)
+    h = T / N
+    J = 0
+    for k in range(N):
+        for j in range(1, d + 1):
+            xp = sum(float(C[r_, j]) * X[:, k * d + r_] for r_ in range(d + 1))
+            opti.subject_to(xp == h * f(X[:, k * d + j], U[k]))
+            J = J + h * float(b[j - 1]) * U[k] ** 2
+    opti.subject_to(X[:, 0] == ca.DM([0, 0, 0, 0]))
+    opti.subject_to(X[:, -1] == ca.DM([0, np.pi, 0, 0]))
+    tt = np.linspace(0, 1, N * d + 1)
+    opti.set_initial(X[1, :], np.pi * tt)
+    opti.minimize(J)
+    opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes"})
+    return float(opti.solve().value(J))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("full", [False, True])
+def test_cartpole_swing_up_from_the_default_guess(full):
+    sol = cartpole_ocp(full).solve()
+    assert sol.success, sol.report
+    L = CP["L"]
+    assert sol["p"][-1] == pytest.approx([0.0, L], abs=1e-5)
+    assert sol["s"][-1] == pytest.approx(0.0, abs=1e-8)
+    ref = cartpole_minimal_coordinates()
+    assert abs(sol.objective - ref) < 1e-4, (sol.objective, ref)
+    assert "algebraic equation" not in sol.report

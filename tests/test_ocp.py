@@ -756,18 +756,23 @@ def test_betts_pendulum_from_the_index3_model(initial_all):
     assert "IPOPT: Solve_Succeeded" in sol.report
 
 
-def test_poor_least_squares_start_is_not_a_veto():
-    """From Betts' default guess the end-point least-squares check cannot meet final x = 0
-    (residual ~0.18: a local minimum); the problem is feasible, IPOPT runs and succeeds."""
+def test_poor_least_squares_start_is_not_a_veto(monkeypatch):
+    """From the free swing (u = 0, the guess without the manifold blend) the end-point
+    least-squares check cannot meet final x = 0 (residual ~0.18: a local minimum); the problem
+    is feasible, IPOPT runs from that guess and succeeds."""
+    from daekit.ocp import guess as guess_mod
     from daekit.ocp.guess import make_guess
     from daekit.ocp.report import endpoint_checks
 
+    monkeypatch.setattr(guess_mod, "_final_miss", lambda *a: 0.0)  # keep the free swing
     ocp = betts_pendulum()
     prob = ocp.compile()
     msgs = endpoint_checks(prob, make_guess(prob, None))
     assert msgs and "final x" in msgs[0] and "not a proof" in msgs[0]
     sol = ocp.solve()
     assert sol.success and sol.stats["iter_count"] > 0
+    assert sol.stats["guess"] == "simulation with the guessed controls"
+    assert sol.objective == pytest.approx(12.8738889, abs=1e-4)
 
 
 @pytest.mark.parametrize("k", [1e4, 1e8])

@@ -179,13 +179,11 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
             continue
         cols = slice(e * n, (e + 1) * n)
 
-        def rank(J, rows=idx, cols=cols, e=e):
-            A = equilibrate(np.asarray(J[0], float)[rows][:, cols]) @ null_basis(J[1 + e])
-            return int(np.sum(np.linalg.svd(A, compute_uv=False) > 1e-7)) if A.size else 0
-
+        A = equilibrate(np.asarray(at_a[0], float)[idx][:, cols]) @ null_basis(at_a[1 + e])
+        sv = np.linalg.svd(A, compute_uv=False) if A.size else np.zeros(0)
         dim = null_basis(at_a[1 + e]).shape[1] - a.nw
-        if rank(at_a) >= dim:
-            continue  # the end's conditions fix the point regularly
+        if dim <= 0 or sv.size < dim or sv[dim - 1] > 1e-4:
+            continue  # the end's conditions do not fix the point, or fix it regularly
         rows = list(range(e * nman, (e + 1) * nman)) + [2 * nman + i for i in idx]
         sub = _rows_of(prob.ends_fun, rows)
         y = np.concatenate(a_pt)
@@ -200,6 +198,10 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
                 break
         if not isolated:
             continue
+        # the point itself, to roundoff: Gauss-Newton converges only linearly at a degenerate
+        # root (residual ~ distance^2), so iterate it to the end from a
+        y0, yT, _ = project_ends(sub, y[:n], y[n:], p, T, tol=0.0, max_iter=300)
+        y = np.concatenate([y0, yT])
         # an independent subset of the states there (positions first)
         A = np.eye(n)[: a.nx] @ null_basis(at_a[1 + e])
         pref = sorted(range(a.nx), key=lambda i: (lev[("x", i)], i))

@@ -173,9 +173,15 @@ def make_guess(prob, guess) -> Guess:
         miss = _final_miss(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
         if miss > 1e-3:
             xe, ze, ok = _consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
-            path = _manifold_blend(prob, np.array(ts), x0, z0, xe, ze, Ws, p) if ok else None
+            # on the interval boundaries (and the ends), interpolated in between
+            nodes = np.unique(np.r_[0, np.arange(tau.size, len(ts), tau.size), len(ts) - 1])
+            tn = np.array(ts)[nodes]
+            path = _manifold_blend(prob, tn, x0, z0, xe, ze, [Ws[i] for i in nodes], p) \
+                if ok else None
             if path is not None:
-                Xs, Zs = list(path[0].T), list(path[1].T)
+                fn = _interp_fun(tn, *path)
+                Xn, Zn, Wn = fn(np.array(ts))
+                Xs, Zs, Ws = list(Xn.T), list(Zn.T), list(Wn.T)
                 note = (f"a path along the invariant manifold from the initial point to the final "
                         f"conditions (the simulation with the guessed controls missed them by "
                         f"{miss:.3g}): the smoothest one whose positions, velocities and "
@@ -189,9 +195,6 @@ def make_guess(prob, guess) -> Guess:
     return Guess(fun, T, p, note=note)
 
 
-BLEND_OPTS: dict = {}
-
-
 def _final_miss(prob, x, z, w, p, T) -> float:
     """Largest residual of the final conditions at ``(x, z, w)`` (scaled by the state size)."""
     idx = [i for i, k in enumerate(prob.bc_kinds) if k == "final"]
@@ -203,58 +206,61 @@ def _final_miss(prob, x, z, w, p, T) -> float:
 
 
 def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
-    """States from ``x0`` to ``xe`` along the manifold: at every time of ``ts`` the algebraic
-    equations and the invariants hold, each kinematic pair ``x_j' = x_i`` agrees (trapezoidal
-    rule) and the path is the smoothest such one (least sum of squared differences between
-    neighbouring times, scaled by the time step). A small NLP (IPOPT), started from the
-    straight line with a small seeded perturbation (a straight line through a symmetric
-    configuration, e.g. hanging to upright through the pivot, is a saddle). Returns ``(X, Z)``
-    or None when it does not converge."""
-    from .compiled import kinematic_pairs
+    """States, algebraic unknowns and controls from ``x0`` to ``xe`` along the manifold.
 
+    A small NLP (IPOPT) on the times ``ts``: at every time the algebraic equations and the
+    invariants hold (the controls are free there, within their bounds), the end points are
+    ``x0`` and ``xe``, and the objective is the least-squares mismatch of the dynamics
+    ``x' = ode(t, x, z, w)`` (trapezoidal rule, each state scaled by its size) plus a little
+    smoothness (sum of squared differences between neighbouring times). As constraints the
+    trapezoidal rule and exact invariants at every time would force, e.g., a constant angular
+    speed on a rotation; in the least-squares sense they give a path that is nearly a motion
+    of the model. Started from the straight line with a small seeded perturbation (a straight
+    line through a symmetric configuration, hanging to upright through the pivot, is a
+    saddle). Returns ``(X, Z, W)`` or None when it does not converge."""
     a = prob.aug
     K = ts.size
-    n = a.nx + a.nz
-    if K < 2 or a.nx == 0:
+    if K < 3 or a.nx == 0:
         return None
     X = ca.SX.sym("X", a.nx, K)
     Z = ca.SX.sym("Z", a.nz, K)
-    W = np.asarray(Ws, float).reshape(K, a.nw).T
+    Wv = ca.SX.sym("W", a.nw, K)
+    W0 = np.asarray(Ws, float).reshape(K, a.nw).T
     sc = np.maximum(1.0, np.maximum(np.abs(x0), np.abs(xe)))
-    man = ca.Function("m", [a.t, a.x, a.z, a.w, a.p], [ca.vertcat(a.alg, a.inv)])
+    P = np.repeat(np.reshape(p, (-1, 1)), K, 1)
+    fm = ca.Function("m", [a.t, a.x, a.z, a.w, a.p], [ca.vertcat(a.alg, a.inv), a.ode])
+    man, ode = fm.map(K)(ts.reshape(1, -1), X, Z, Wv, P)
     # the manifold at the interior times (the fixed end points are on it already)
-    G = [man.map(K - 2)(ts[1:-1].reshape(1, -1), X[:, 1:-1], Z[:, 1:-1], W[:, 1:-1],
-                        np.repeat(np.reshape(p, (-1, 1)), K - 2, 1))] if K > 2 else []
-    h = np.diff(ts)
-    # the kinematic pairs agree in the least-squares sense (as constraints, the trapezoidal
-    # rule and exact invariants at every time force a constant angular speed on a rotation)
-    f = 0
-    for j, i in kinematic_pairs(a):
-        e = (X[j, 1:] - X[j, :-1] - 0.5 * h.reshape(1, -1) * (X[i, 1:] + X[i, :-1])) / sc[j]
-        f = f + ca.sum2(e**2 / h.reshape(1, -1))
-    G = ca.vec(ca.horzcat(*[ca.vec(g_).T for g_ in G])) if G else ca.SX(0, 1)
-    D = (X[:, 1:] - X[:, :-1]) / sc.reshape(-1, 1)
-    f = f + 1e-3 * ca.sum2(ca.sum1(D**2) / h.reshape(1, -1))
-    xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
-    lbx = np.concatenate([np.repeat(xlb.reshape(-1, 1), K, 1).ravel("F"),
-                          np.repeat(zlb.reshape(-1, 1), K, 1).ravel("F")])
-    ubx = np.concatenate([np.repeat(xub.reshape(-1, 1), K, 1).ravel("F"),
-                          np.repeat(zub.reshape(-1, 1), K, 1).ravel("F")])
-    # the end points are fixed
-    for k, xv in ((0, x0), (K - 1, xe)):
-        lbx[k * a.nx:(k + 1) * a.nx] = ubx[k * a.nx:(k + 1) * a.nx] = xv
+    G = ca.vec(man[:, 1:-1])
+    h = np.diff(ts).reshape(1, -1)
+    Hh = ca.DM(np.repeat(0.5 * h, a.nx, axis=0))
+    Sc = ca.DM(np.repeat(1.0 / sc.reshape(-1, 1), K - 1, axis=1))
+    dX = X[:, 1:] - X[:, :-1]
+    E = (dX - Hh * (ode[:, 1:] + ode[:, :-1])) * Sc
+    D = dX * Sc
+    f = ca.sum2(ca.sum1(E**2) / ca.DM(h)) + 1e-3 * ca.sum2(ca.sum1(D**2) / ca.DM(h))
+    f = f + 1e-6 * ca.sumsqr(Wv) / K
+    xlb, xub, zlb, zub, wlb, wub = prob.simple_bounds()
+
+    def rep(v):
+        return np.repeat(np.reshape(v, (-1, 1)), K, 1)
+
+    Xlb, Xub = rep(xlb), rep(xub)
+    Xlb[:, 0] = Xub[:, 0] = x0
+    Xlb[:, -1] = Xub[:, -1] = xe
+    lbx = np.concatenate([Xlb.ravel("F"), rep(zlb).ravel("F"), rep(wlb).ravel("F")])
+    ubx = np.concatenate([Xub.ravel("F"), rep(zub).ravel("F"), rep(wub).ravel("F")])
     s_ = (ts - ts[0]) / (ts[-1] - ts[0])
     Xg = (1 - s_) * x0.reshape(-1, 1) + s_ * xe.reshape(-1, 1)
     rng = np.random.default_rng(3)
-    bump = np.sin(np.pi * s_)
-    Xg = Xg + 0.05 * sc.reshape(-1, 1) * bump * rng.standard_normal((a.nx, 1))
+    Xg = Xg + 0.05 * sc.reshape(-1, 1) * np.sin(np.pi * s_) * rng.standard_normal((a.nx, 1))
     Zg = (1 - s_) * z0.reshape(-1, 1) + s_ * ze.reshape(-1, 1)
-    x_init = np.clip(np.concatenate([Xg.ravel("F"), Zg.ravel("F")]), lbx, ubx)
+    x_init = np.clip(np.concatenate([Xg.ravel("F"), Zg.ravel("F"), W0.ravel("F")]), lbx, ubx)
     try:
         solver = ca.nlpsol("blend", "ipopt",
-                           {"x": ca.vertcat(ca.vec(X), ca.vec(Z)), "f": f, "g": G},
+                           {"x": ca.vertcat(ca.vec(X), ca.vec(Z), ca.vec(Wv)), "f": f, "g": G},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                            "ipopt.max_iter": 200, "ipopt.mumps_permuting_scaling": 0, **BLEND_OPTS})
+                            "ipopt.max_iter": 300, "ipopt.mumps_permuting_scaling": 0})
         with quiet():
             res = solver(x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     except RuntimeError:
@@ -262,8 +268,9 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
     if not solver.stats().get("success", False):
         return None
     sol = np.asarray(res["x"]).ravel()
-    del n
-    return (sol[:a.nx * K].reshape(K, a.nx).T, sol[a.nx * K:].reshape(K, a.nz).T)
+    nX, nZ = a.nx * K, a.nz * K
+    return (sol[:nX].reshape(K, a.nx).T, sol[nX:nX + nZ].reshape(K, a.nz).T,
+            sol[nX + nZ:].reshape(K, a.nw).T)
 
 
 def seg(v, start: int, stop: int):

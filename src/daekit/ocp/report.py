@@ -101,7 +101,9 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
             )
         elif ba.dropped:
             sel = {i for i, _, _ in ba.selectors}
-            dropped = [ba.labels[i] for i in ba.dropped]
+            pinned = {k for k, *_ in ba.pins}
+            dropped = [ba.labels[i] for i in ba.dropped if prob.bc_kinds[i] not in pinned]
+            replaced = [ba.labels[i] for i in ba.dropped if prob.bc_kinds[i] in pinned]
             v0, vT, P, TT = (np.asarray(x) for x in tr.ends(V))
             res = np.asarray(bres).ravel()
             worst = max(abs(res[i]) for i in ba.dropped)
@@ -110,12 +112,16 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
                 f"(dimension {ba.manifold_dims[0]} at t = 0 and {ba.manifold_dims[1]} at t = T; "
                 "the final state lies on it because the invariants hold at t = 0 and the "
                 "dynamics keep them). Imposed: "
-                f"{_fmt_list([ba.labels[i] for i in kept])}. Dropped as implied by those and "
-                f"the invariants: {_fmt_list(dropped) or 'none'}"
+                f"{_fmt_list([ba.labels[i] for i in kept] + [lab for *_, lab in ba.pins])}"
+                + (f" (the last {len(ba.pins)} in place of {_fmt_list(replaced)}: the point "
+                   "they determine, see below)" if ba.pins else "")
+                + f". Dropped as implied by those and the invariants: {_fmt_list(dropped) or 'none'}"
                 + (f" (branch-selecting, checked at the solution: "
                    f"{_fmt_list([ba.labels[i] for i in sorted(sel)])})" if sel else "")
                 + ("." if ba.proven else
-                   f"; their largest residual at the solution is {worst:.2e}.")
+                   "; the largest residual of these" + (" and the replaced ones" if ba.pins
+                                                        else "")
+                   + f" at the solution is {worst:.2e}.")
             )
             if not ba.proven and worst > 1e-4 * max(1.0, float(np.max(np.abs(v0), initial=1.0))):
                 lines.append(

@@ -172,7 +172,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
         )
     infeas = []
     if not success:
-        infeas = [] if ba.proven else _violations(tr, g, lbg, ubg)
+        infeas = [] if ba.proven else _violations(tr, g, lbg, ubg, float(np.ravel(T_opt)[0]))
         pre = list(pre)
         lines.append("The solver did not succeed.")
         if ba.dropped and kept == list(range(ba.n_conditions)):
@@ -206,7 +206,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
     return "\n".join(lines), infeas
 
 
-def _violations(tr, g, lbg, ubg):
+def _violations(tr, g, lbg, ubg, T: float = 1.0):
     viol = np.maximum(np.maximum(lbg - g, g - ubg), 0.0)
     viol[~np.isfinite(viol)] = np.inf
     best: dict[str, tuple[float, float | None]] = {}
@@ -226,10 +226,12 @@ def _violations(tr, g, lbg, ubg):
                 else:
                     lab = sub
             t = grp.time if isinstance(grp.time, (int, float)) else None
+            if grp.times is not None:
+                t = float(grp.times[i - grp.start])
             if lab not in best or v > best[lab][0]:
                 best[lab] = (v, t)
     items = sorted(best.items(), key=lambda kv: -kv[1][0])
-    tscale = 1.0
+    tscale = T  # the rows' times are fractions of the horizon
     return [(lab, v, None if t is None else t * tscale) for lab, (v, t) in items]
 
 

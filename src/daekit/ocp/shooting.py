@@ -169,7 +169,8 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
     tol = {**DEFAULT_INTEGRATOR_OPTIONS, **(prob.integrator_options or {})}
     method = (f"multiple shooting on {plugin} (rtol {tol['reltol']:g}, atol {tol['abstol']:g}), "
               "one integrator mapped over the intervals")
-    return finish(prob, B, J, P, T, fr, Xs, Zs, Wnode, Ws, kept, selectors, pins, method,
+    return finish(prob, B, J, P, T, fr, ca.horzcat(*Xs), ca.horzcat(*Zs), ca.horzcat(*Wnode),
+                  ca.horzcat(*Ws), kept, selectors, pins, method,
                   list(range(N + 1)), 1, hessian_exact=False)
 
 

@@ -61,24 +61,27 @@ def params_and_time(prob, B: NLPBuilder, T_guess: float | None = None, p_guess=N
     return P, T
 
 
-def finish(prob, B: NLPBuilder, J, P, T, fr, Xgrid, Zgrid, Wgrid, Wint, kept, selectors, pins,
+def finish(prob, B: NLPBuilder, J, P, T, fr, X, Z, W, Wint, kept, selectors, pins,
            method: str, node_index: list[int], ncoef: int, hessian_exact: bool = True
            ) -> Transcription:
     """The common tail: the Mayer term at ``(T, X, Z, W)`` of the last grid column, the
     boundary conditions on ``v0 = (X, Z, W)`` of the first column and ``vT`` of the last, and
-    the functions that read a decision vector."""
-    XT, ZT, WT = Xgrid[-1], Zgrid[-1], Wgrid[-1]
+    the functions that read a decision vector. ``X, Z, W``: the values on the grid (one
+    column per time of ``fr``); ``Wint``: the control of each interval (one column per
+    coefficient)."""
+    nt = len(fr)
+    XT, ZT, WT = X[:, nt - 1], Z[:, nt - 1], W[:, nt - 1]
     if prob.has_mayer:
         J = J + prob.mayer_fun(T, XT, ZT, WT, P)
-    v0 = ca.vertcat(Xgrid[0], Zgrid[0], Wgrid[0])
+    v0 = ca.vertcat(X[:, 0], Z[:, 0], W[:, 0])
     vT = ca.vertcat(XT, ZT, WT)
     prob.add_boundary(B, v0, vT, P, T, kept, selectors, pins)
     V = B.V()
     grid = ca.Function(
         "grid", [V],
-        [ca.DM(fr).T, ca.horzcat(*Xgrid), ca.horzcat(*Zgrid), ca.horzcat(*Wgrid), T, P],
+        [ca.DM(np.asarray(fr, float)).T, X, Z, W, T, P],
     )
     ends = ca.Function("ends", [V], [v0, vT, P, T])
-    controls = ca.Function("controls", [V], [ca.horzcat(*Wint)])
+    controls = ca.Function("controls", [V], [Wint])
     return Transcription(B, J, grid, ends, method, len(fr), hessian_exact=hessian_exact,
                          controls=controls, node_index=node_index, ncoef=ncoef)

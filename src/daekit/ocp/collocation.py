@@ -15,6 +15,8 @@ time: the algebraic unknowns ``z_0`` (with ``alg = 0``), where the invariants ar
 
 from __future__ import annotations
 
+import functools
+
 import casadi as ca
 import numpy as np
 
@@ -25,6 +27,20 @@ __all__ = ["radau_coefficients", "transcribe", "Transcription"]
 
 
 def radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Radau IIA coefficients of degree ``d`` (cached; see :func:`_radau_coefficients`).
+
+    >>> radau_coefficients(2)[0].round(4).tolist()
+    [0.0, 0.3333, 1.0]
+    """
+    return tuple(np.array(v) for v in _radau_cached(int(d)))
+
+
+@functools.lru_cache(maxsize=8)
+def _radau_cached(d: int):
+    return _radau_coefficients(d)
+
+
+def _radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points ``tau = [0, tau_1..tau_d]``, derivative matrix ``C`` (``C[r, j]``: derivative of the
     ``r``-th Lagrange basis polynomial through ``tau`` at ``tau_j``), quadrature weights ``b``
     (Radau IIA, for ``tau_1..tau_d``) and ``e0`` (the degree ``d - 1`` interpolant through the

@@ -138,23 +138,24 @@ def make_guess(prob, guess) -> Guess:
     sim = _GuessSimulator(a, tau, p)
     x, z = x0, z0
     failed = None
-    for k in range(N):
-        tk, h = k * T / N, T / N
-        wk = w_at(tk + 0.5 * h)
-        if failed is None:
-            try:
-                xf, zf = sim.interval(x, z, wk, tk, h)
-            except RuntimeError as exc:
-                failed = (tk, str(exc).splitlines()[-1] if str(exc) else "")
-        if failed is not None:
-            xf = np.repeat(x.reshape(-1, 1), tau.size, axis=1)
-            zf = np.repeat(z.reshape(-1, 1), tau.size, axis=1)
-        for j, tj in enumerate(tau):
-            ts.append(tk + h * tj)
-            Xs.append(xf[:, j])
-            Zs.append(zf[:, j])
-            Ws.append(wk)
-        x, z = xf[:, -1], zf[:, -1]
+    with quiet():  # SUNDIALS' messages on a failed interval (set up once, not per interval)
+        for k in range(N):
+            tk, h = k * T / N, T / N
+            wk = w_at(tk + 0.5 * h)
+            if failed is None:
+                try:
+                    xf, zf = sim.interval(x, z, wk, tk, h)
+                except RuntimeError as exc:
+                    failed = (tk, str(exc).splitlines()[-1] if str(exc) else "")
+            if failed is not None:
+                xf = np.repeat(x.reshape(-1, 1), tau.size, axis=1)
+                zf = np.repeat(z.reshape(-1, 1), tau.size, axis=1)
+            for j, tj in enumerate(tau):
+                ts.append(tk + h * tj)
+                Xs.append(xf[:, j])
+                Zs.append(zf[:, j])
+                Ws.append(wk)
+            x, z = xf[:, -1], zf[:, -1]
     note = "simulation with the guessed controls"
     if failed is not None:
         tf = failed[0]
@@ -174,7 +175,9 @@ def make_guess(prob, guess) -> Guess:
         if miss > 1e-3:
             xe, ze, ok = _consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
             # on the interval boundaries (and the ends), interpolated in between
-            nodes = np.unique(np.r_[0, np.arange(tau.size, len(ts), tau.size), len(ts) - 1])
+            # (at most BLEND_NODES of them: a guess needs no finer path)
+            step = tau.size * max(1, int(np.ceil(N / (BLEND_NODES - 1))))
+            nodes = np.unique(np.r_[0, np.arange(step, len(ts), step), len(ts) - 1])
             tn = np.array(ts)[nodes]
             path = _manifold_blend(prob, tn, x0, z0, xe, ze, [Ws[i] for i in nodes], p) \
                 if ok else None
@@ -193,6 +196,10 @@ def make_guess(prob, guess) -> Guess:
 
     fun = _interp_fun(np.array(ts), cols(Xs, a.nx), cols(Zs, a.nz), cols(Ws, a.nw))
     return Guess(fun, T, p, note=note)
+
+
+#: Largest number of times of the manifold blend (the guess is interpolated in between).
+BLEND_NODES = 51
 
 
 def _final_miss(prob, x, z, w, p, T) -> float:
@@ -260,7 +267,8 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
         solver = ca.nlpsol("blend", "ipopt",
                            {"x": ca.vertcat(ca.vec(X), ca.vec(Z), ca.vec(Wv)), "f": f, "g": G},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                            "ipopt.max_iter": 300, "ipopt.mumps_permuting_scaling": 0})
+                            "ipopt.max_iter": 300, "ipopt.mumps_permuting_scaling": 0,
+                            "ipopt.tol": 1e-6})
         with quiet():
             res = solver(x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     except RuntimeError:
@@ -399,8 +407,7 @@ class _GuessSimulator:
         err = None
         for calc_ic in attempts:
             try:
-                with quiet():
-                    res = self._integrator(calc_ic)(x0=x, z0=z, p=pv)
+                res = self._integrator(calc_ic)(x0=x, z0=z, p=pv)
             except RuntimeError as exc:
                 err = exc
                 continue

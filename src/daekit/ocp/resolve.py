@@ -45,11 +45,10 @@ def resolve_violated(prob, first, ba, check: bool, make_guess):
     forced = [i for i, _ in viol]
     g = make_guess(prob, first)
     ba2 = analyze(prob, g, forced=forced)
-    # the first solve's conditions and the forced ones are imposed, even where a forced one
-    # looks dependent (at the wrong branch)
-    ba2.kept = sorted(set(ba.kept) | set(forced))
-    ba2.dropped = [j for j in range(len(ba.labels)) if j not in ba2.kept]
-    ba2.pins = list(ba.pins)
+    # the forced conditions are imposed even where one looks dependent (at the wrong branch),
+    # so that the report's "imposing ..." is what was imposed
+    ba2.kept = sorted(set(ba2.kept) | set(forced))
+    ba2.dropped = [j for j in ba2.dropped if j not in ba2.kept]
     ba2.selectors = [s for s in ba2.selectors if s[0] not in forced]
     sol = solve_once(prob, g, ba2, "drop", check, t0)
     imposed = [ba2.labels[i] for i in ba2.kept]

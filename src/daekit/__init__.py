@@ -11,6 +11,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 
 from . import mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
+from .ensemble import Ensemble, ensemble, ensemble_ocp, sample
 from .errors import (
     DaekitError,
     InitializationError,
@@ -72,6 +73,10 @@ __all__ = [
     "simulate",
     "DaekitError",
     "EasyTest",
+    "Ensemble",
+    "ensemble",
+    "ensemble_ocp",
+    "sample",
     "InitializationError",
     "Model",
     "ModelError",

@@ -83,6 +83,8 @@ class InitialValues:
     residual : float
         Max |alg|, |invariant| at the solution.
     iterations : int
+    notes : list of str
+        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced).
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
     """
@@ -100,6 +102,7 @@ class InitialValues:
     iterations: int = 0
     x_names: list[str] = field(default_factory=list)
     z_names: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
         from .simulate.trajectory import expand_name
@@ -162,6 +165,8 @@ def initialize(
     Parameters
     ----------
     r : ReducedDAE
+        A Model or LagrangianSystem is reduced automatically (see
+        :func:`daekit.reduction.as_reduced`; ``init.notes`` says how).
     t0 : float
         Initial time (invariants and inputs may depend on time).
     guess : dict, optional
@@ -198,8 +203,18 @@ def initialize(
     >>> bool(abs(np.linalg.norm(init["p"]) - 1) < 1e-12), init.dof
     (True, 2)
     """
+    from .reduced import ReducedDAE
     from .simulate.inputs import InputSignal, resolve_params
 
+    notes: list[str] = []
+    if not isinstance(r, ReducedDAE):  # a Model or LagrangianSystem: reduced (and noted)
+        from .reduction.accept import as_reduced
+
+        r = as_reduced(r, "initialize", notes=notes)
+        out = initialize(r, t0, guess=guess, fixed=fixed, inputs=inputs, params=params,
+                         tol=tol, max_iter=max_iter)
+        out.notes = notes + out.notes
+        return out
     base = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
     if base is not None:
         # an index-2 form (GGL): alg = 0 leaves its multipliers underdetermined; initialize

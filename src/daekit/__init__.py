@@ -35,7 +35,7 @@ from .reduction import (
     reselect,
     selection_condition,
 )
-from .simulate import InputError, Trajectory, simulate
+from .simulate import InputError, Trajectory, load_trajectory, simulate
 
 __version__ = "0.1.0"
 
@@ -66,6 +66,7 @@ __all__ = [
     "ggl",
     "initialize",
     "lagrangian",
+    "load_trajectory",
     "mechanics",
     "reduce_index",
     "reselect",

@@ -893,9 +893,10 @@ def ensemble_ocp(
             guess = results[src].get("solution_") if src >= 0 else None
             sol = ocp.solve(guess=guess, **solve_options)
             ok = bool(sol.success)
-            row.update(success=ok, error="" if ok else f"solver status {sol.stats.get('status', '?')}",
-                       objective=float(sol.objective),
-                       iterations=int(sol.stats.get("iterations", sol.stats.get("iter_count", 0)) or 0))
+            status = str(getattr(sol, "status", "") or sol.stats.get("return_status", "?"))
+            row.update(success=ok, error="" if ok else f"solver status {status}",
+                       objective=float(sol.objective), status=status,
+                       iterations=int(sol.stats.get("iter_count", 0) or 0))
             if not ok:
                 res["error"] = row["error"] + (": " + sol.report if getattr(sol, "report", "") else "")
             if reduce is not None:

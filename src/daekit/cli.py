@@ -356,7 +356,7 @@ def _cmd_sweep(args) -> int:
     ok = len(ens) - len(ens.failures)
     print(f"swept {len(ens)} samples of {', '.join(names)} on {ens.stats['executor']} in "
           f"{ens.stats['wall_time']:.2f} s: {ok} succeeded, {len(ens.failures)} failed")
-    for i, msg in list(ens.failures.items())[:5]:
+    for msg in list(ens.failures.values())[:5]:
         print(f"  failed: {msg[:300]}")
     if len(ens.failures) > 5:
         print(f"  ... ({len(ens.failures) - 5} more failures in {out})")

@@ -332,8 +332,9 @@ class Ensemble:
     def summary(self) -> list[dict]:
         """One dict per sample: the sample's values, ``success``, ``error`` (message or ""),
         ``max_invariant`` (max |invariant| over the trajectory and all invariants),
-        ``max|NAME|`` per invariant, ``steps``, ``wall_time`` (s, initialize + simulate in
-        the worker), and the columns returned by the user's ``reduce(traj)``."""
+        ``max|NAME|`` per invariant, ``steps``, ``wall_time`` and ``cpu_time`` (s,
+        initialize + simulate in the worker; the CPU time of the worker's process), and the
+        columns returned by the user's ``reduce(traj)``."""
         return [dict(r) for r in self.rows]
 
     def to_pandas(self):
@@ -499,7 +500,7 @@ def _run_one(r, s: dict, job: dict) -> dict:
         else:
             fixed[k] = v
     row: dict[str, Any] = dict(s)
-    w0 = time.perf_counter()
+    w0, c0 = time.perf_counter(), time.process_time()
     out: dict[str, Any] = {"row": row, "error": ""}
     try:
         init = initialize(r, t0=float(job["t"][0]), guess=job["guess"], fixed=fixed,
@@ -510,15 +511,15 @@ def _run_one(r, s: dict, job: dict) -> dict:
         what = "" if isinstance(exc, DaekitError) else f"{type(exc).__name__}: "
         out["error"] = what + str(exc)
         row.update(success=False, error=out["error"], max_invariant=math.nan, steps=0,
-                   wall_time=time.perf_counter() - w0)
+                   wall_time=time.perf_counter() - w0, cpu_time=time.process_time() - c0)
         return out
-    wall = time.perf_counter() - w0
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     maxinv = traj.max_invariant()
     row.update(success=True, error="",
                max_invariant=max(maxinv.values()) if maxinv else 0.0)
     for k, v in maxinv.items():
         row[f"max|{k}|"] = v
-    row.update(steps=int(traj.stats.get("steps", 0) or 0), wall_time=wall)
+    row.update(steps=int(traj.stats.get("steps", 0) or 0), wall_time=wall, cpu_time=cpu)
     red = job["reduce"]
     if red is not None:
         try:
@@ -776,7 +777,7 @@ def ensemble(
             if own is not None:
                 own.shutdown(wait=True)
         if local_reduce is not None:
-            for i, res in enumerate(results):
+            for res in results:
                 if res is not None and not res.get("error"):
                     _apply_reduce(res, local_reduce, keep)
     bar.close()

@@ -65,6 +65,8 @@ def exact_periods():
 
 def test_sixteen_lengths_default_executor_exact_periods(local):
     assert local.stats["executor"] == "processes" and len(local) == 16 and local.failures == {}
+    # the system travels once per worker process, not once per sample or task
+    assert local.stats["system_transfers"] == local.stats["workers"] < local.stats["chunks"]
     got = np.array([row["period"] for row in local.summary()])
     assert np.abs(got - exact_periods()).max() < 1e-6
     # and the trajectories themselves against the exact (Jacobi elliptic) solution

@@ -291,7 +291,9 @@ class Ensemble:
         The output times shared by all trajectories.
     stats : dict
         ``wall_time`` (s, the whole sweep), ``executor`` (what ran it), ``workers``,
-        ``chunks``, ``notes`` (e.g. that the model was reduced automatically).
+        ``chunks`` (tasks), ``system_bytes`` and ``system_transfers`` (the size of the
+        serialized system and how often it was sent), ``notes`` (e.g. that the model was
+        reduced automatically).
 
     ``len(ens)`` is the number of samples; ``ens[i]`` the :class:`~daekit.Trajectory` of sample
     ``i`` (None when it failed); iterating gives the trajectories in order. With
@@ -733,6 +735,7 @@ def ensemble(
                 ) from None
         blob = pickle.dumps(r, protocol=pickle.HIGHEST_PROTOCOL)
         key = hashlib.sha1(blob).hexdigest()
+        stats["system_bytes"] = len(blob)
         own = None
         ex = executor
         if ex is None:
@@ -754,6 +757,10 @@ def ensemble(
         per = chunksize or max(1, math.ceil(len(samp) / (4 * stats["workers"])))
         chunks = _chunks(indexed, math.ceil(len(samp) / per))
         stats["chunks"] = len(chunks)
+        # how many times the serialized system travels: once per worker process (initializer
+        # or scatter); with a foreign executor once per chunk (deserialized once per process)
+        stats["system_transfers"] = (stats["workers"] if own is not None or _is_dask_client(ex)
+                                     else len(chunks))
         try:
             if _is_dask_client(ex):
                 from distributed import as_completed as dask_completed

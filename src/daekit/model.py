@@ -542,8 +542,8 @@ class Model:
         if hasattr(obj, "index1") and callable(getattr(obj, "model", None)):
             return obj.model()
         raise ModelError(
-            f"{where} needs a daekit.Model (or a daekit.mechanics.LagrangianSystem), got "
-            f"{type(obj).__name__}"
+            f"{where} needs a daekit.Model, got {type(obj).__name__} (a "
+            "daekit.mechanics.LagrangianSystem is accepted too)"
         )
 
     def validate(self) -> None:

@@ -322,3 +322,19 @@ def test_cli_sweep_on_a_scheduler(dask_client, tmp_path, capsys):
     assert sorted(zip(df["L"], df["g"])) == [(1.0, 1.62), (1.0, 9.81), (2.0, 1.62), (2.0, 9.81)]
     assert "dask" in capsys.readouterr().out
 
+
+
+def test_input_expressions_travel_with_the_system():
+    """Lecture L2 driven by u = a sin(t) (an SX expression of the model's time): x2 = u,
+    x1 = u', z = u'' in every worker, the input's symbol shared with the shipped system."""
+    import casadi as ca
+
+    m = dk.examples.l2()
+    t = np.linspace(0, 2, 21)
+    ens = dk.ensemble(m, t, [{}, {}], inputs={"u": ca.sin(m.t)}, progress=False,
+                      rtol=1e-10, atol=1e-10)
+    assert ens.failures == {} and ens.stats["executor"] == "processes"
+    for tr in ens:
+        assert np.abs(tr["x2"] - np.sin(t)).max() < 1e-8
+        assert np.abs(tr["x1"] - np.cos(t)).max() < 1e-8
+        assert np.abs(tr["z"] + np.sin(t)).max() < 1e-6

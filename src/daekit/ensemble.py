@@ -470,12 +470,24 @@ def _dumps(obj) -> bytes:
         return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
 
 
+def _pack_system(r, inputs) -> bytes:
+    """The system and the inputs in one CasADi serialization: input expressions of ``r.t``
+    (or of the model's ``m.t``) keep their symbols shared with the system."""
+    import casadi as ca
+
+    with ca.global_pickle_context():
+        return _dumps((r, inputs))
+
+
 def _install(key: str, blob: bytes) -> None:
-    """Worker initializer: deserialize the system once."""
+    """Worker initializer: deserialize the system (and the inputs) once."""
+    import casadi as ca
+
     if key not in _SYSTEMS:
         if len(_SYSTEMS) >= 4:
             _SYSTEMS.pop(next(iter(_SYSTEMS)))
-        _SYSTEMS[key] = pickle.loads(blob)  # noqa: S301 - our own serialization
+        with ca.global_unpickle_context():
+            _SYSTEMS[key] = pickle.loads(blob)  # noqa: S301 - our own serialization
 
 
 def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, dict]]:
@@ -484,8 +496,9 @@ def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, 
         if blob is None:
             raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
         _install(key, blob)
-    r = _SYSTEMS[key]
+    r, inputs = _SYSTEMS[key]
     job = pickle.loads(payload)  # noqa: S301 - our own serialization
+    job["inputs"] = inputs
     return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
 
 
@@ -716,16 +729,24 @@ def ensemble(
             bar.update(done, failed)
     else:
         try:
-            payload_job = dict(job)
+            blob = _pack_system(r, inputs)
+        except Exception:  # noqa: BLE001
+            raise ModelError(
+                "ensemble: the inputs cannot be sent to worker processes (a local Python "
+                "function without cloudpickle installed?); give them as CasADi expressions of "
+                "time, install cloudpickle, or use executor='serial'"
+            ) from None
+        try:
+            payload_job = dict(job, inputs=None)
             _dumps(payload_job)
         except Exception:  # noqa: BLE001 - reduce cannot be shipped: run it here
             if reduce is None:
                 raise ModelError(
-                    "ensemble: the options cannot be sent to worker processes (an input given "
-                    "as a local Python function?); install cloudpickle, or use executor='serial'"
+                    "ensemble: the simulate options cannot be sent to worker processes; install "
+                    "cloudpickle, or use executor='serial'"
                 ) from None
             local_reduce = reduce
-            payload_job = dict(job, reduce=None, keep="trajectory")
+            payload_job = dict(job, inputs=None, reduce=None, keep="trajectory")
             try:
                 _dumps(payload_job)
             except Exception:  # noqa: BLE001
@@ -733,7 +754,6 @@ def ensemble(
                     "ensemble: the options cannot be sent to worker processes; install "
                     "cloudpickle, or use executor='serial'"
                 ) from None
-        blob = pickle.dumps(r, protocol=pickle.HIGHEST_PROTOCOL)
         key = hashlib.sha1(blob).hexdigest()
         stats["system_bytes"] = len(blob)
         own = None

@@ -179,6 +179,12 @@ def test_reduced_dae_pickles_and_simulates_exactly(planar):
     tr = dk.simulate(r2, T_GRID[:201], init, rtol=1e-10, atol=1e-10)
     ex = pendulum_planar(T_GRID[:201], THETA0)
     assert np.abs(tr["x"] - ex["x"]).max() < 1e-7 and np.abs(tr["T"] - ex["T"]).max() < 1e-6
+    import copy
+
+    import casadi as ca
+
+    c = copy.copy(planar)  # copies share the symbols (only pickling makes new ones)
+    assert ca.is_equal(c.x, planar.x) and ca.is_equal(copy.deepcopy(planar).x, planar.x)
     traj2 = pickle.loads(pickle.dumps(tr))
     assert np.array_equal(traj2["x"], tr["x"]) and traj2.invariant_names == tr.invariant_names
 

@@ -52,6 +52,20 @@ def test_lagrangian_system_accepted_everywhere():
     assert np.abs(rat["p[0]"] - ex["x"]).max() < 1e-4  # RATTLE is of order 2
 
 
+def test_stabilizers_format_and_ocp_accept_models_too():
+    m = dk.examples.pendulum_planar()
+    rb = dk.baumgarte(m, poles=(-5.0, -5.0))
+    assert rb.stabilization == "baumgarte" and "reduced automatically" in rb.info["notes"][0]
+    t = np.linspace(0, 1, 101)
+    init = dk.initialize(rb, fixed={"x": np.sin(TH), "der(x)": 0.0}, guess={"y": -0.5})
+    tr = dk.simulate(rb, t, init, rtol=1e-10, atol=1e-10)
+    assert np.abs(tr["x"] - pendulum_planar(t, TH)["x"]).max() < 1e-7
+    assert dk.ggl(m).info["index"] == 2
+    assert dk.format_reduced(m).startswith("pendulum_planar reduced by differentiate")
+    ocp = dk.OCP(dk.examples.lagrangian_pendulum3d(), t_final=1.0, intervals=5)
+    assert ocp is not None
+
+
 def test_rattle_on_a_model_says_what_it_needs():
     m = dk.examples.pendulum_planar()
     with pytest.raises(dk.ModelError, match=r"method='rattle'\) needs a mechanical system.*"

@@ -7,6 +7,7 @@ initial time, and a map from the original model's names to expressions in these 
 
 from __future__ import annotations
 
+import copy
 import pickle
 from dataclasses import dataclass, field
 
@@ -106,6 +107,18 @@ class ReducedDAE:
     # CasADi SX pickle only inside a casadi pickle context (one serializer for all of them, so
     # that shared symbols stay shared). A ReducedDAE opens its own when none is open: it can be
     # pickled as is, e.g. to ship it to worker processes once (daekit.ensemble).
+    # copy.copy / copy.deepcopy as before (shared symbols), not through the serialization
+    def __copy__(self) -> ReducedDAE:
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        return new
+
+    def __deepcopy__(self, memo: dict) -> ReducedDAE:
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        new.__dict__.update(copy.deepcopy(self.__dict__, memo))
+        return new
+
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         if _casadi_context_open("pickle"):

@@ -71,6 +71,9 @@ def as_reduced(obj, where: str, stabilization: str | None = None, method: str = 
             r = obj.index1() if red == "differentiate" else reduce_index(obj.model(), method=red)
         else:
             r = reduce_index(obj, method=red)
+        r.info.setdefault("notes", []).append(
+            f"reduced automatically (for {where}); the {'LagrangianSystem' if lagrangian else 'Model'} "
+            "was given where a ReducedDAE is expected")
         try:
             _AUTO[obj] = (fp, r)
         except TypeError:  # not weak-referenceable: no reuse

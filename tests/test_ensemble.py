@@ -151,6 +151,11 @@ def test_unknown_names_and_bad_arguments(planar):
         dk.ensemble(planar, T_GRID, [{"L": 1.0}], keep="all")
     with pytest.raises(dk.ModelError, match="executor"):
         dk.ensemble(planar, T_GRID, [{"L": 1.0}], executor="threads")
+    # options shared by every sample are checked once, before anything runs
+    with pytest.raises(dk.ModelError, match="unknown stabilization 'projections'"):
+        dk.ensemble(planar, T_GRID, [{"L": 1.0}], stabilization="projections")
+    with pytest.raises(dk.ModelError, match="rtol must be a positive number"):
+        dk.ensemble(planar, T_GRID, [{"L": 1.0}], rtol=-1.0)
 
 
 def test_a_model_is_reduced_once_and_noted():

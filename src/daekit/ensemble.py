@@ -696,6 +696,7 @@ def ensemble(
     for what, val in (("fixed", fixed), ("guess", guess), ("params", params)):
         if val is not None and not isinstance(val, Mapping):
             raise ModelError(f"ensemble: {what} must be a dict of names and values")
+    _check_simulate_options(simulate_options)
     param_keys, _ = _split_keys(r, samp)
     if fixed:
         _split_keys(r, [dict(fixed)])
@@ -810,6 +811,25 @@ def ensemble(
     bar.close()
     stats["wall_time"] = time.perf_counter() - wall0
     return Ensemble(samp, results, tg, keep, stats, r)
+
+
+def _check_simulate_options(opts: Mapping) -> None:
+    """The options every sample shares, checked once here (not failing every sample)."""
+    from .simulate.idas import STABILIZATIONS
+
+    stab = opts.get("stabilization")
+    if isinstance(stab, str) and stab.lower() == "none":
+        stab = None
+    if stab not in STABILIZATIONS:
+        raise ModelError(f"ensemble: unknown stabilization {stab!r}; use "
+                         + ", ".join(repr(s) for s in STABILIZATIONS))
+    if opts.get("method", "idas") not in ("idas", "rattle"):
+        raise ModelError(f"ensemble: unknown method {opts['method']!r}; use 'idas' or 'rattle'")
+    for name in ("rtol", "atol"):
+        v = opts.get(name, 1e-8)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and v > 0):
+            raise ModelError(f"ensemble: {name} must be a positive number, got {v!r}")
 
 
 def _apply_reduce(res: dict, reduce: Callable, keep: str) -> None:

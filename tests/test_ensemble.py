@@ -252,11 +252,25 @@ def test_ocp_sweep_warm_started():
         before = [k for k in order[:order.index(i)]]
         assert abs(d[j] - d[i]) == min(abs(d[k] - d[i]) for k in before)
     assert ens[1].success and abs(ens[1]["s"][-1] - 2.0) < 1e-9
-    # an OCP whose parameters the samples set
-    ocp = problem(1.0)
-    with pytest.raises(dk.ModelError, match="neither|factory"):
+    with pytest.raises(dk.ModelError, match="factory"):
         dk.ensemble_ocp(42, [{"d": 1}])
-    assert ocp.solve().success
+
+
+def test_ocp_sweep_over_parameters_of_one_ocp():
+    """mass * s'' = u, rest to rest over distance 1 in 1 s: min int u^2 = 12 mass^2."""
+    m = dk.Model("cart")
+    s = m.state("s")
+    u = m.control("u")
+    mass = m.parameter("mass", 1.0)
+    m.equation(mass * m.der(s, 2) - u, name="newton")
+    ocp = dk.OCP(m, t_final=1.0, intervals=10, controls="polynomial")
+    ocp.minimize(integral=u**2)
+    ocp.initial({"s": 0, "der(s)": 0}).final({"s": 1, "der(s)": 0})
+    masses = [1.0, 3.0, 2.0]
+    ens = dk.ensemble_ocp(ocp, {"mass": masses}, progress=False, keep="summary")
+    rows = ens.summary()
+    assert np.allclose([r["objective"] for r in rows], 12 * np.square(masses), rtol=1e-8)
+    assert [r["warm_from"] for r in rows] == [-1, 2, 0]
 
 
 def test_ensemble_plot_percentile_bands(local):

@@ -330,6 +330,14 @@ def test_cli_sweep_csv(tmp_path, capsys):
     assert "swept 4 samples of L" in capsys.readouterr().out
     rc = main(["sweep", "pendulum_planar", "--param", "L=0.5:2.0", "--t-end", "1"])
     assert rc == 2 and "LO:HI:N" in capsys.readouterr().err
+    # Monte Carlo from the shell: the same draws as dk.sample
+    rc = main(["sweep", "pendulum_planar", "--draw", "L=uniform:0.8:1.2", "--n", "3",
+               "--seed", "4", "--t-end", "0.5", "--points", "11", "--guess",
+               '{"x": 0.5, "y": -0.5}', "--out", str(out), "--quiet", "--serial"])
+    assert rc == 0
+    df = pd.read_csv(out, index_col="sample")
+    want = [d["L"] for d in dk.sample({"L": ("uniform", 0.8, 1.2)}, 3, seed=4)]
+    assert df["L"].tolist() == want and df["success"].all()
 
 
 def test_cli_sweep_on_a_scheduler(dask_client, tmp_path, capsys):

@@ -315,6 +315,19 @@ def _parse_param(spec: str) -> tuple[str, list[float]]:
                          "NAME=V1,V2,... with numbers") from None
 
 
+def _parse_draw(spec: str) -> tuple[str, tuple]:
+    """``"L=uniform:0.8:1.2"`` -> ``("L", ("uniform", 0.8, 1.2))`` (see :func:`daekit.sample`)."""
+    name, eq, text = spec.partition("=")
+    parts = text.split(":")
+    try:
+        if not eq or not name.strip() or len(parts) < 2:
+            raise ValueError
+        return name.strip(), (parts[0].strip(), *[float(v) for v in parts[1:]])
+    except ValueError:
+        raise ModelError(f"--draw {spec!r}: write NAME=DISTRIBUTION:A:B, e.g. L=uniform:0.8:1.2 "
+                         "or m=normal:1.0:0.05") from None
+
+
 def _cmd_sweep(args) -> int:
     import itertools
 
@@ -322,12 +335,21 @@ def _cmd_sweep(args) -> int:
 
     obj = load_target(args.target)
     r = _as_reduced(obj, "idas", args.stabilization)
-    grids = [_parse_param(p) for p in args.param]
-    names = [g[0] for g in grids]
+    if not args.param and not args.draw:
+        raise ModelError("sweep: give --param NAME=LO:HI:N (a grid) or --draw NAME=DIST:A:B "
+                         "--n N (Monte Carlo)")
+    grids = [_parse_param(p) for p in args.param or []]
+    spec = dict(_parse_draw(d) for d in args.draw or [])
+    names = [g[0] for g in grids] + list(spec)
     if len(set(names)) != len(names):
-        raise ModelError(f"--param: a name is given twice ({', '.join(names)})")
-    samples = [dict(zip(names, combo, strict=True))
+        raise ModelError(f"--param/--draw: a name is given twice ({', '.join(names)})")
+    samples = [dict(zip(names, combo, strict=False))
                for combo in itertools.product(*[g[1] for g in grids])]
+    if spec:
+        from .sampling import sample
+
+        draws = sample(spec, args.n, seed=args.seed)
+        samples = [{**g, **d} for g in samples for d in draws]
     fixed = json.loads(args.fixed) if args.fixed else None
     guess = json.loads(args.guess) if args.guess else None
     inputs = _parse_inputs(args.input, r)
@@ -420,9 +442,15 @@ def build_parser() -> argparse.ArgumentParser:
     w = sub.add_parser("sweep", help="a parameter sweep: one simulation per sample, a summary "
                        "table (CSV or Parquet); local processes or a Dask scheduler")
     w.add_argument("target")
-    w.add_argument("--param", action="append", required=True, metavar="NAME=LO:HI:N",
+    w.add_argument("--param", action="append", metavar="NAME=LO:HI:N",
                    help="values of a parameter (or of a fixed initial value): LO:HI:N or "
                         "V1,V2,...; several --param give the full grid")
+    w.add_argument("--draw", action="append", metavar="NAME=DIST:A:B",
+                   help="Monte Carlo: draw NAME from uniform:LO:HI, normal:MEAN:STD, "
+                        "lognormal:MU:SIGMA, loguniform:LO:HI, triangular:LO:MODE:HI (--n draws, "
+                        "--seed; with --param, at every grid point)")
+    w.add_argument("--n", type=int, default=100, help="number of draws (default: %(default)s)")
+    w.add_argument("--seed", type=int, default=0, help="seed of the draws (default: 0)")
     w.add_argument("--t-end", type=float, required=True)
     w.add_argument("--points", type=int, default=501, help="output points (default: %(default)s)")
     w.add_argument("--stabilization", default=None,

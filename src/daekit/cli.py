@@ -94,18 +94,14 @@ def _as_model(obj):
 
 
 def _as_reduced(obj, method: str, stabilization: str | None):
-    from .mechanics import LagrangianSystem
+    """The file's object as a ReducedDAE, by the entry points' one rule
+    (:func:`daekit.reduction.as_reduced`)."""
     from .reduced import ReducedDAE
-    from .reduction import reduce_index
+    from .reduction import as_reduced
 
-    if isinstance(obj, ReducedDAE):
-        return obj
-    if isinstance(obj, LagrangianSystem) and method != "rattle" and stabilization != "dummy_derivatives":
-        return obj.index1()
-    if isinstance(obj, LagrangianSystem):
-        return obj.index1() if method == "rattle" else reduce_index(obj.model(), method="dummy_derivatives")
-    red_method = "dummy_derivatives" if stabilization == "dummy_derivatives" else "differentiate"
-    return reduce_index(_as_model(obj), method=red_method)
+    if not isinstance(obj, ReducedDAE) and not hasattr(obj, "index1"):
+        obj = _as_model(obj)  # names what the file returned when it is not a model
+    return as_reduced(obj, "simulate", stabilization=stabilization, method=method)
 
 
 def _cmd_analyze(args) -> int:

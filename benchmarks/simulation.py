@@ -90,7 +90,7 @@ def part1(quick: bool) -> None:
             cases = [("daekit plain", r, init, None), ("daekit projection", r, init, "projection"),
                      ("dummy derivatives", rd, initd, "dummy_derivatives")]
             for label, rr, ii, stab in cases:
-                def go(rr=rr, ii=ii, stab=stab, t=t):
+                def go(rr=rr, ii=ii, stab=stab, t=t, tol=tol):
                     return dk.simulate(rr, t, ii, rtol=tol, atol=tol, stabilization=stab)
 
                 go()  # build the integrators once

@@ -182,10 +182,11 @@ class _SystemCache:
         self.args = [w, r.t, r.u, r.p]
         core = ca.vertcat(self.alg, self.inv)
         self.core = core
-        self.core_fun = ca.Function("core", self.args, [core, ca.jacobian(core, w)])
+        Jcore = ca.jacobian(core, w)
+        self.Jz = Jcore[: int(self.alg.numel()), nx:]  # d alg / d z (for settle)
+        self.core_fun = ca.Function("core", self.args, [core, Jcore])
         self.core_ccs = _ccs(self.core_fun.sparsity_out(1))
-        self.v_fun = ca.Function("values", self.args, [self.V, ca.jacobian(self.V, w)])
-        self.v_ccs = _ccs(self.v_fun.sparsity_out(1))
+        self.v_fun = ca.Function("values", self.args, [self.V])
         # rows of V that are plain symbols: hash (two names of one quantity) and w position
         elems = ca.vertsplit(self.V) if self.V.numel() else []
         pos_of = {e.element_hash(): i for i, e in enumerate(ca.vertsplit(w))} if nx + nz else {}
@@ -369,14 +370,38 @@ def initialize(
     row_names = list(alg_names) + list(r.invariant_names) + fixed_names
     use_sparse = n >= _SPARSE_MIN_UNKNOWNS
 
-    def values_and_jac(wv):
-        Vv, JV = sc.v_fun(wv, *args)
-        return np.asarray(Vv, dtype=float).ravel(), _to_csc(JV, sc.v_ccs).tocsr()
+    # the rows of V the fixed values and guesses use, and their Jacobian: unit rows for plain
+    # symbols of w, zero rows for other symbols (inputs, parameters), a sparse CasADi
+    # Jacobian only for the rows that are expressions (made per call, for those rows only)
+    used, inv_used = (np.unique(np.concatenate([fix_idx, g_idx]), return_inverse=True)
+                      if fix_idx.size + g_idx.size else (fix_idx, fix_idx))
+    fix_k, g_k = inv_used[: fix_idx.size], inv_used[fix_idx.size:]
+    expr_k = np.nonzero(sc.sym_hash[used] == -1)[0] if used.size else used
+    unit_k = np.nonzero((sc.sym_hash[used] != -1) & (sc.w_pos[used] >= 0))[0] if used.size \
+        else used
+    S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
+                           shape=(used.size, n))
+    if expr_k.size:
+        Ve = sc.V[used[expr_k].tolist()]
+        used_fun = ca.Function("used_values", sc.args, [Ve, ca.jacobian(Ve, sc.w)])
+        used_ccs = _ccs(used_fun.sparsity_out(1))
+        P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
+                               shape=(used.size, expr_k.size))
+
+    def values_and_jac(wv, jac: bool = True):
+        """All named values at ``wv``, and the Jacobian of the used rows (CSR)."""
+        Vv = np.asarray(sc.v_fun(wv, *args), dtype=float).ravel()
+        if not jac:
+            return Vv, None
+        if expr_k.size:
+            _, Je = used_fun(wv, *args)
+            return Vv, (S_unit + P_expr @ _to_csc(Je, used_ccs)).tocsr()
+        return Vv, S_unit
 
     def gfun(wv):
         """Guessed values and their Jacobian (sparse CSC, or dense on the dense path)."""
-        Vv, JV = values_and_jac(wv)
-        JG = JV[g_idx].tocsc()
+        Vv, JU = values_and_jac(wv)
+        JG = JU[g_k].tocsc()
         return Vv[g_idx], (JG if use_sparse else JG.toarray())
 
     # starting point: x, z from guesses/fixed values that name them directly, else 0
@@ -394,7 +419,7 @@ def initialize(
     if nz and n_alg == nz:
         key = bool(use_sparse)
         if key not in sc.settle:
-            sc.settle[key] = _z_solver(sc.alg, sc.w, sc.args, nx, use_sparse)
+            sc.settle[key] = _z_solver(sc.alg, sc.Jz, sc.w, sc.args, nx, use_sparse)
         z_solve = sc.settle[key]
 
         def settle(wv):
@@ -407,9 +432,9 @@ def initialize(
 
     def hval(wv):
         c, Jc = sc.core_fun(wv, *args)
-        Vv, JV = values_and_jac(wv)
+        Vv, JU = values_and_jac(wv)
         hv = np.concatenate([np.asarray(c, dtype=float).ravel(), Vv[fix_idx] - fix_val])
-        J = sp.vstack([_to_csc(Jc, sc.core_ccs), JV[fix_idx]], format="csc")
+        J = sp.vstack([_to_csc(Jc, sc.core_ccs), JU[fix_k]], format="csc")
         if use_sparse:
             return hv, J
         return hv, J.toarray()
@@ -422,7 +447,7 @@ def initialize(
     def objective(wv) -> float:
         if not gval.size:
             return 0.0
-        return 0.5 * float(np.sum((values_and_jac(wv)[0][g_idx] - gval) ** 2))
+        return 0.5 * float(np.sum((values_and_jac(wv, False)[0][g_idx] - gval) ** 2))
 
     # rows of V that the guesses and fixed values use and that are not plain symbols (those
     # have curvature); with z the curvature of alg matters only where some used row (or an
@@ -456,7 +481,7 @@ def initialize(
                 extra["f"], extra["ccs"] = f, _ccs(f.sparsity_out(0))
             yv = np.zeros(int(sc.V.numel()))
             np.add.at(yv, fix_idx, y[n_alg + n_inv:])
-            np.add.at(yv, g_idx, values_and_jac(wv)[0][g_idx] - gval)
+            np.add.at(yv, g_idx, values_and_jac(wv, False)[0][g_idx] - gval)
             H = H + _to_csc(extra["f"](wv, *args, yv[curved]), extra["ccs"])
         H = H.tocsc()
         return H if use_sparse else H.toarray()
@@ -557,7 +582,7 @@ def initialize(
             wv[k] = v
 
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
-    values = dict(zip(sc.names, values_and_jac(wv)[0].tolist(), strict=True))
+    values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
     return InitialValues(
         t0, x0, z0, u0, pv, values, free, len(free), redundant, cons, it,
@@ -636,14 +661,14 @@ def _gn_step(hv, J, gfun, wv, gval, nx=None, n_alg=0, C=None):
     return d, y
 
 
-def _z_solver(alg: ca.SX, w: ca.SX, args, nx: int, sparse: bool, iters: int = 12):
+def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
+              iters: int = 12):
     """``settle(w, (t, u, p))``: ``w`` with its ``z`` part re-solved from ``alg(x, z) = 0`` at
     fixed ``x``
     (Newton with SuperLU or dense LU on ``d alg / d z``; one step when ``alg`` is affine in
     ``z``, as for mechanical systems). Where ``d alg / d z`` is singular or Newton does not
     converge, ``w`` is returned unchanged (the joint step stands)."""
     zs = w[nx:]
-    Jz = ca.jacobian(alg, zs)
     affine = not ca.depends_on(Jz, zs)
     afun = ca.Function("alg_z", list(args), [alg, Jz])
     ccs = _ccs(afun.sparsity_out(1))

@@ -388,21 +388,28 @@ def initialize(
         P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
                                shape=(used.size, expr_k.size))
 
+    if not use_sparse:  # small systems: dense NumPy throughout (no sparse overhead)
+        S_unit = S_unit.toarray()
+        if expr_k.size:
+            P_expr = P_expr.toarray()
+
     def values_and_jac(wv, jac: bool = True):
-        """All named values at ``wv``, and the Jacobian of the used rows (CSR)."""
+        """All named values at ``wv``, and the Jacobian of the used rows (CSR, or dense on
+        the dense path)."""
         Vv = np.asarray(sc.v_fun(wv, *args), dtype=float).ravel()
         if not jac:
             return Vv, None
         if expr_k.size:
             _, Je = used_fun(wv, *args)
+            if not use_sparse:
+                return Vv, S_unit + P_expr @ np.asarray(Je.full(), dtype=float)
             return Vv, (S_unit + P_expr @ _to_csc(Je, used_ccs)).tocsr()
         return Vv, S_unit
 
     def gfun(wv):
         """Guessed values and their Jacobian (sparse CSC, or dense on the dense path)."""
         Vv, JU = values_and_jac(wv)
-        JG = JU[g_k].tocsc()
-        return Vv[g_idx], (JG if use_sparse else JG.toarray())
+        return Vv[g_idx], (JU[g_k].tocsc() if use_sparse else JU[g_k])
 
     # starting point: x, z from guesses/fixed values that name them directly, else 0
     w0 = np.zeros(n)
@@ -434,10 +441,9 @@ def initialize(
         c, Jc = sc.core_fun(wv, *args)
         Vv, JU = values_and_jac(wv)
         hv = np.concatenate([np.asarray(c, dtype=float).ravel(), Vv[fix_idx] - fix_val])
-        J = sp.vstack([_to_csc(Jc, sc.core_ccs), JU[fix_k]], format="csc")
         if use_sparse:
-            return hv, J
-        return hv, J.toarray()
+            return hv, sp.vstack([_to_csc(Jc, sc.core_ccs), JU[fix_k]], format="csc")
+        return hv, np.vstack([np.asarray(Jc.full(), dtype=float), JU[fix_k]])
 
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
@@ -680,8 +686,8 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
         for _ in range(count):
             g, A = afun(w1, *vals)
             g = np.asarray(g, dtype=float).ravel()
-            A = _to_csc(A, ccs)
-            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data))):
+            A = _to_csc(A, ccs) if sparse else np.asarray(A.full(), dtype=float)
+            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data if sparse else A))):
                 return wv
             ng = float(np.max(np.abs(g), initial=0.0))
             if g0 is None:
@@ -696,7 +702,7 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 else:
                     with warnings.catch_warnings():
                         warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-                        dz = scipy.linalg.solve(A.toarray(), -g, check_finite=False)
+                        dz = scipy.linalg.solve(A, -g, check_finite=False)
             except (RuntimeError, np.linalg.LinAlgError, ValueError,
                     scipy.linalg.LinAlgWarning):
                 return wv

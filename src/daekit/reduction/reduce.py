@@ -726,13 +726,21 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         return
     J = ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
+    small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
-        A = _to_scipy(f(t, x, z, u, p))
-        if not np.all(np.isfinite(A.data)):
-            continue
-        finite = True
-        bad = _singular_rows(A)
+        if small:
+            A = np.asarray(f(t, x, z, u, p).full(), dtype=float)
+            if not np.all(np.isfinite(A)):
+                continue
+            finite = True
+            bad = _dense_singular_rows(A, np.arange(r.nz))
+        else:
+            A = _to_scipy(f(t, x, z, u, p))
+            if not np.all(np.isfinite(A.data)):
+                continue
+            finite = True
+            bad = _singular_rows(A)
         if bad is None:
             r.info["index1_check"] = "passed"
             return

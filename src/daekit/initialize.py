@@ -52,6 +52,7 @@ from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from .errors import InitializationError
 from .threads import limit_blas_threads
+from .wording import count
 
 __all__ = ["InitialValues", "initialize"]
 
@@ -812,7 +813,7 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
         raise InitializationError(
             f"initialize: the fixed values {_fmt(fx)} contradict "
             + (f"the consistency conditions {conds}" if conds else "each other")
-            + f" (max residual {res:.3g} after {it} iterations). Fix fewer values - fix only "
+            + f" (max residual {res:.3g} after {count(it, 'iteration')}). Fix fewer values - fix only "
             "dynamic degrees of freedom - or make them consistent, and give the rest as guesses."
         )
     what = cond_rows + alg_rows
@@ -822,7 +823,7 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
     )
     raise InitializationError(
         f"initialize: no consistent values found: {what} keep a residual of {res:.3g} after "
-        f"{it} iterations ({hint})."
+        f"{count(it, 'iteration')} ({hint})."
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 
 from ..reduced import ReducedDAE
+from ..wording import count
 
 __all__ = ["format_reduced"]
 
@@ -30,9 +31,8 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
     """
     name = getattr(r.model, "name", "model")
     out = [
-        f"{name} reduced by {r.method}: {r.nx} states, {r.nz} algebraic "
-        f"unknown{'' if r.nz == 1 else 's'}, "
-        f"{len(r.invariant_names)} invariants"
+        f"{name} reduced by {r.method}: {count(r.nx, 'state')}, "
+        f"{count(r.nz, 'algebraic unknown')}, {count(len(r.invariant_names), 'invariant')}"
         + (f", stabilization {r.stabilization}" if r.stabilization else "")
     ]
     if r.info.get("index") is not None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._cio import c_output, failure_time
 from ..errors import SimulationError
+from ..wording import count
 from .inputs import InputError, InputSignal, resolve_params
 from .projection import Projector
 from .trajectory import Trajectory
@@ -408,7 +409,7 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
     except (TypeError, ValueError):
         raise InputError(
             f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an "
-            f"array of the {r.nx} states; got {type(init).__name__}"
+            f"array of the {count(r.nx, 'state')}; got {type(init).__name__}"
         ) from None
     if arr.size == r.nx:
         x0 = arr
@@ -418,7 +419,7 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
-        f"of the {r.nx} states; got {arr.size} numbers"
+        f"of the {count(r.nx, 'state')}; got {count(arr.size, 'number')}"
     )
 
 

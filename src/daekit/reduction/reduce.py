@@ -182,12 +182,19 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
-    zpairs = [(j, int(d[j])) for j in range(n) if (j, int(d[j])) not in gone]
-    rows = [i for i in range(n) if i not in gone_eqs]
+    top_gone = np.zeros(n, dtype=bool)
+    for j, k in el.pairs:
+        if k == int(d[j]):
+            top_gone[j] = True
+    zpairs = list(zip(np.nonzero(~top_gone)[0].tolist(), d[~top_gone].tolist(), strict=True))
+    keep = np.ones(n, dtype=bool)
+    keep[np.asarray(el.equations, dtype=np.int64)] = False
+    rows = np.nonzero(keep)[0].tolist()
     alg = _top_equations(ex)
     if gone_eqs:
         alg = alg[rows]
-    alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in rows]
+    eq_names = ex.equation_names
+    alg_names = [derivative_name(eq_names[i], int(c[i])) for i in rows]
     inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
     r = _assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
     if el.pairs:

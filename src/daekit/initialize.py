@@ -188,20 +188,35 @@ class _SystemCache:
         self.core_fun = ca.Function("core", self.args, [core, Jcore])
         self.core_ccs = _ccs(self.core_fun.sparsity_out(1))
         self.v_fun = ca.Function("values", self.args, [self.V])
-        # rows of V that are plain symbols: hash (two names of one quantity) and w position
-        elems = ca.vertsplit(self.V) if self.V.numel() else []
-        pos_of = {e.element_hash(): i for i, e in enumerate(ca.vertsplit(w))} if nx + nz else {}
-        self.sym_hash = np.full(len(elems), -1, dtype=np.int64)
-        self.w_pos = np.full(len(elems), -1, dtype=np.int64)
-        for i, e in enumerate(elems):
-            if e.is_symbolic():
-                hsh = e.element_hash()
-                self.sym_hash[i] = hsh
-                self.w_pos[i] = pos_of.get(hsh, -1)
-        self.elems = elems
+        # rows of V that are plain symbols: hash (two names of one quantity) and w position,
+        # found for the rows that fixed values and guesses use, on first use (-2: not yet)
+        nv = int(self.V.numel())
+        self.sym_hash = np.full(nv, -2, dtype=np.int64)
+        self.w_pos = np.full(nv, -1, dtype=np.int64)
+        self.elems: dict[int, ca.SX] = {}
+        self._pos_of = None
         self.settle = {}
         self.hess: dict = {}
         self.zdep = None
+
+    def describe(self, rows: np.ndarray) -> None:
+        """Fill ``sym_hash``, ``w_pos`` and ``elems`` for ``rows`` (one slice of ``V``)."""
+        todo = np.unique(rows[self.sym_hash[rows] == -2]) if rows.size else rows
+        if not todo.size:
+            return
+        if self._pos_of is None:
+            ws = ca.vertsplit(self.w) if self.w.numel() else []
+            self._pos_of = {e.element_hash(): i for i, e in enumerate(ws)}
+        part = self.V[todo.tolist()]
+        elems = ca.vertsplit(part) if todo.size > 1 else [part]
+        for i, e in zip(todo.tolist(), elems, strict=True):
+            self.elems[i] = e
+            if e.is_symbolic():
+                hsh = e.element_hash()
+                self.sym_hash[i] = hsh
+                self.w_pos[i] = self._pos_of.get(hsh, -1)
+            else:
+                self.sym_hash[i] = -1
 
     def hessian(self, part: str):
         """Hessian functions, made on first use: ``"inv"``: ``H(w, t, u, p, y)`` of
@@ -344,6 +359,7 @@ def initialize(
     fix_val = np.array([f[2] for f in fixed_items])
     g_idx = np.array([g[1] for g in guess_items], dtype=np.int64)
     gval = np.array([g[2] for g in guess_items])
+    sc.describe(np.concatenate([fix_idx, g_idx]))
     # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols are
     # compared by their hash (made once per system), other expressions pairwise
     seen: dict[int, tuple[str, float]] = {}

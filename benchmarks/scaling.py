@@ -19,7 +19,7 @@ Between successive N the growth exponent ``log(t2/t1) / log(N2/N1)`` is printed 
 stage. A stage is skipped for bigger N once its predicted time (from the last growth) exceeds
 ``LIMIT`` seconds. Also printed: ``casadi.dae_reduce_index`` on 200 links against daekit's
 ``reduce_index`` (the comparison row of issue 14), and the fixed per-call cost on the planar
-pendulum (analyze + reduce + initialize, best of 5).
+pendulum (analyze + reduce + initialize, best of 30).
 
 Run: ``python benchmarks/scaling.py [N ...] [--cpu] [--figure PATH]`` (``--cpu``: CPU time of
 this process instead of wall time) (default sizes 100 200 500 1000
@@ -95,7 +95,7 @@ def casadi_row(N: int = 200) -> tuple[float, float]:
     return t_dk, t_ca
 
 
-def pendulum_fixed_cost(repeat: int = 5) -> float:
+def pendulum_fixed_cost(repeat: int = 30) -> float:
     m = dk.examples.pendulum_planar()
     dk.initialize(dk.reduce_index(m), fixed={"x": 0.6, "der(x)": 0.0}, guess={"y": -0.8})
 
@@ -151,7 +151,7 @@ def main(argv: list[str]) -> None:
     print(f"\n200 links: daekit reduce_index {t_dk:.3f} s, casadi.dae_reduce_index {t_ca:.3f} s: "
           f"{t_ca / t_dk:.0f}x")
     print(f"planar pendulum analyze + reduce + initialize: {1e3 * pendulum_fixed_cost():.1f} ms "
-          "(best of 5)")
+          "(best of 30)")
     try:
         import matplotlib
 

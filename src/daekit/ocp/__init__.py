@@ -4,10 +4,17 @@ The model is reduced to index 1 (or given as a :class:`~daekit.reduced.ReducedDA
 optimal control problem is transcribed (direct collocation with Radau IIA by default, or
 multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
 (invariants) are imposed at the initial time only, and boundary conditions that are redundant
-with them (full periodicity of a constrained mechanism) are detected and dropped (a dropped
-condition the solution turns out to violate is imposed in a second solve; conditions that
-contradict each other are named instead and nothing is solved); the solution's
-:attr:`OCPSolution.report` says what was done.
+with them (full periodicity of a constrained mechanism) are detected and dropped where the
+rank decision is valid (a dropped condition the solution turns out to violate is imposed in a
+second solve); IPOPT always runs unless the conditions are proven contradictory (then they are
+named and nothing is solved); the solution's :attr:`OCPSolution.report` says what was done.
+
+Layout: :class:`OCP` is the statement builder; :meth:`OCP.compile` freezes it into a
+:class:`~daekit.ocp.compiled.Problem`, which :mod:`~daekit.ocp.guess`,
+:mod:`~daekit.ocp.boundary` (which conditions to impose), :mod:`~daekit.ocp.collocation` and
+:mod:`~daekit.ocp.shooting` (sharing :mod:`~daekit.ocp.transcription`), :mod:`~daekit.ocp.run`
+(one IPOPT run), :mod:`~daekit.ocp.resolve` (the second solve) and :mod:`~daekit.ocp.report`
+read; :mod:`~daekit.ocp.solution` builds the :class:`OCPSolution`.
 
 Example: swing a planar pendulum (index 3 in Cartesian coordinates: unit mass and rod, a
 tangential force ``u``) from rest at the bottom to rest at 30 degrees in 2 s with the least

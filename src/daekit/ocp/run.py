@@ -107,7 +107,8 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float) -> OCP
         "n_boundary_conditions": n_bc,
         "boundary_rank": ba.rank,
         "boundary_dropped": [ba.labels[i] for i in ba.dropped] if redundancy == "drop" else [],
-        "boundary_selectors": [ba.labels[i] for i, _, _ in selectors],
+        "boundary_selectors": [ba.labels[i] for i, _, _ in ba.selectors],
+        "boundary_pins": [lab for *_, lab in pins],
     })
     stats["t_total"] = _time.perf_counter() - t_start
     v0e, vTe, Pe, Te = (np.asarray(x) for x in tr.ends(Vopt))

@@ -468,8 +468,26 @@ class OCP:
         ba = analyze(prob, g)
         self._last_boundary = ba
         sol = solve_once(prob, g, ba, redundancy, check, t_start)
+        if (not sol.success and redundancy == "drop" and ba.selectors and not ba.proven
+                and sol.stats.get("boundary_selectors_imposed")):
+            # the branch inequalities can trap IPOPT when the guess lies on another branch:
+            # once more without them (the dropped conditions are then checked, and imposed by
+            # the re-solve if violated)
+            first = sol
+            sol = solve_once(prob, g, ba, redundancy, check, _time.perf_counter(),
+                             selectors=False)
+            retry = {"status": first.status, "iter_count": first.stats.get("iter_count")}
+        else:
+            retry = None
         if redundancy == "drop" and sol.success and ba.dropped:
             sol = resolve_violated(prob, sol, ba, check, make_guess)
+        if retry is not None:
+            sol.stats["first_with_branch_inequalities"] = retry
+            lines = sol.report.split("\n")
+            lines.insert(1, f"First run with the branch inequalities: {retry['status']} after "
+                            f"{retry['iter_count']} iterations (the guess lies on another "
+                            "branch); run again without them.")
+            sol.report = "\n".join(lines)
         if not sol.success and raise_on_failure:
             raise OCPError(sol.report)
         return sol

@@ -52,6 +52,7 @@ import math
 import os
 import pickle
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor, as_completed
@@ -335,7 +336,8 @@ def _csv_value(v):
 
 # ----------------------------------------------------------------------------------------------
 # workers
-_SYSTEMS: dict[str, Any] = {}  # digest -> ReducedDAE, in each worker process
+_SYSTEMS: dict[str, Any] = {}  # digest -> (ReducedDAE, inputs), in each worker process
+_LOCK = threading.RLock()
 
 
 def _dumps(obj) -> bytes:
@@ -369,15 +371,20 @@ def _install(key: str, blob: bytes) -> None:
 
 
 def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, dict]]:
-    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``."""
-    if key not in _SYSTEMS:
-        if blob is None:
-            raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
-        _install(key, blob)
-    r, inputs = _SYSTEMS[key]
-    job = pickle.loads(payload)  # noqa: S301 - our own serialization
-    job["inputs"] = inputs
-    return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``.
+
+    CasADi's symbolic objects are not thread-safe (initialize builds SX expressions): chunks
+    given to threads of one process (a thread pool, a Dask worker with several threads) run
+    one after the other under a lock; processes run in parallel."""
+    with _LOCK:
+        if key not in _SYSTEMS:
+            if blob is None:
+                raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
+            _install(key, blob)
+        r, inputs = _SYSTEMS[key]
+        job = pickle.loads(payload)  # noqa: S301 - our own serialization
+        job["inputs"] = inputs
+        return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
 
 
 def _run_one(r, s: dict, job: dict) -> dict:
@@ -693,7 +700,7 @@ def ensemble(
 
 def _check_simulate_options(opts: Mapping) -> None:
     """The options every sample shares, checked once here (not failing every sample)."""
-    from .simulate.idas import STABILIZATIONS
+    from .simulate.dispatch import STABILIZATIONS
 
     stab = opts.get("stabilization")
     if isinstance(stab, str) and stab.lower() == "none":

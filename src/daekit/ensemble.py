@@ -51,7 +51,6 @@ import hashlib
 import math
 import os
 import pickle
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -445,31 +444,29 @@ def _plain_value(v):
 # ----------------------------------------------------------------------------------------------
 # progress over samples (a terminal only)
 class _SampleProgress:
-    """A one-line bar over samples on stderr, drawn only when stderr is a terminal."""
+    """The bar over samples: daekit's one progress bar (:class:`daekit.simulate.progress.
+    Progress`, drawn only when stderr is a terminal) counting samples, with failures and the
+    time left."""
 
     def __init__(self, enabled: bool, total: int, label: str = "ensemble") -> None:
-        stream = sys.stderr
-        self.enabled = bool(enabled) and total > 0 and hasattr(stream, "isatty") and stream.isatty()
-        self.total, self.done, self.failed, self.label = total, 0, 0, label
+        from .simulate.progress import Progress
+
+        self.bar = Progress(enabled, 0.0, float(total), label)
+        self.enabled = self.bar.enabled
+        self.total = total
         self.t0 = time.perf_counter()
 
     def update(self, done: int, failed: int) -> None:
-        self.done, self.failed = done, failed
         if not self.enabled:
             return
-        frac = done / self.total
-        bar = "#" * int(25 * frac)
         el = time.perf_counter() - self.t0
-        eta = el / frac - el if frac > 0 else float("nan")
-        sys.stderr.write(f"\r{self.label} [{bar:<25}] {done}/{self.total} samples"
-                         f"{f', {failed} failed' if failed else ''}  {el:.1f} s"
-                         f"{f' (about {eta:.0f} s left)' if 0 < frac < 1 else ''}   ")
-        sys.stderr.flush()
+        frac = done / self.total
+        left = f", about {el / frac - el:.0f} s left" if 0 < frac < 1 else ""
+        self.bar.update(float(done), f"{done}/{self.total} samples"
+                        f"{f', {failed} failed' if failed else ''}, {el:.1f} s{left}   ")
 
     def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
+        self.bar.close()
 
 
 # ----------------------------------------------------------------------------------------------

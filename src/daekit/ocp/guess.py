@@ -42,6 +42,7 @@ class Guess:
     V: np.ndarray | None = None
     key: tuple | None = None
     note: str = ""
+    lam: tuple | None = None  # (lam_x, lam_g) of a previous solution: IPOPT's warm start
 
 
 def _interp_fun(t: np.ndarray, X: np.ndarray, Z: np.ndarray, W: np.ndarray):
@@ -81,7 +82,7 @@ def make_guess(prob, guess) -> Guess:
         tt = guess.t * (T / guess.T)
         p = guess._P.copy()
         return Guess(_interp_fun(tt, guess._X, guess._Z, guess._W), T, p, guess._V, guess._key,
-                     "warm start from a previous solution")
+                     "warm start from a previous solution", getattr(guess, "_lam", None))
     if isinstance(guess, Trajectory):
         if guess.t.size < 1:
             raise OCPError("solve(guess=trajectory): the trajectory is empty")

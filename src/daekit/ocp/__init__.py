@@ -171,7 +171,8 @@ class OCP:
     ) -> None:
         if isinstance(model, ReducedDAE):
             r = model
-        elif hasattr(model, "equations") and hasattr(model, "variables"):
+        elif (hasattr(model, "equations") and hasattr(model, "variables")) or hasattr(
+                model, "index1"):  # a Model, or a LagrangianSystem (reduced as its .model())
             try:
                 from ..reduction import reduce_index
             except ImportError as exc:  # pragma: no cover - depends on the reduction module

@@ -11,7 +11,12 @@ their own grid:
   see :class:`_GuessSimulator`). Should the integration fail, the rest of the guess is a
   straight line to the nearest point that satisfies the algebraic equations, the invariants
   and the final conditions at ``t = T`` (held constant when there is no such point nearby);
-  the guess's note (in the report) says so.
+  the guess's note (in the report) says so. When the simulation runs through but does not
+  reach the final conditions (a pendulum to be swung up stays hanging), the guess *blends*
+  from the initial point to the consistent final point nearest the simulation's end, along
+  the invariant manifold (:func:`_manifold_blend`: a small least-squares NLP for states,
+  algebraic unknowns and controls on the interval boundaries), so that the default guess
+  respects the boundary conditions.
 - a :class:`daekit.Trajectory` from :func:`daekit.simulate` (the user's own simulation with
   the controls of their choice): its values, read by the original model's names, are
   interpolated linearly onto the NLP's grid.

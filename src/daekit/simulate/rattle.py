@@ -53,6 +53,7 @@ import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
 from ..wording import count
+from .progress import Progress
 
 __all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
 
@@ -861,7 +862,7 @@ def simulate_rattle(
     i = 0
     nout = tt.size - 1
     Xcur = ca.DM(X0)
-    bar = _Progress(tt[0], tt[-1]) if progress else None
+    bar = Progress(progress, tt[0], tt[-1], "RATTLE") if progress else None
     while i < nout:
         k = int(nsteps[i])
         j = i
@@ -995,25 +996,3 @@ def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
         pv[elems] = arr
     return pv
 
-
-class _Progress:
-    """A minimal progress bar on stderr."""
-
-    def __init__(self, t0: float, t1: float) -> None:
-        import sys
-
-        self.t0, self.t1, self.out = t0, t1, sys.stderr
-        self.last = -1
-
-    def update(self, t: float) -> None:
-        frac = (t - self.t0) / (self.t1 - self.t0) if self.t1 > self.t0 else 1.0
-        pct = int(100 * frac)
-        if pct != self.last:
-            self.last = pct
-            bar = "#" * (pct // 4)
-            self.out.write(f"\rRATTLE [{bar:<25}] {pct:3d}%  t = {t:.4g}")
-            self.out.flush()
-
-    def close(self) -> None:
-        self.out.write("\n")
-        self.out.flush()

@@ -103,6 +103,11 @@ class ReducedDAE:
             "alg": self.alg,
         }
 
+    def __getstate__(self) -> dict:
+        """Pickling and deep copies leave out the caches other modules keep on a system
+        (attributes starting with ``_``, e.g. initialize's); they are rebuilt on use."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
+
     def __repr__(self) -> str:
         return (
             f"ReducedDAE({self.method}: {count(self.nx, 'state')}, {self.nz} algebraic, "

@@ -100,7 +100,7 @@ class InputSignal:
                 sx = ca.repmat(sx, len(elems), 1)
             if sx.numel() != len(elems):
                 raise InputError(
-                    f"inputs: {key!r} has {len(elems)} element(s) but the expression has "
+                    f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
                     f"{sx.numel()}"
                 )
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
@@ -191,8 +191,8 @@ class InputSignal:
                     v = np.repeat(v, n)
                 if v.size != n:
                     raise InputError(
-                        f"input {key!r} returned {v.size} value(s) at t = {t:g}; it has {n} "
-                        "element(s)"
+                        f"input {key!r} returned {count(v.size, 'value')} at t = {t:g}; it has "
+                        f"{count(n, 'element')}"
                     )
                 cache[id(f)] = v
             out[j] = cache[id(f)][k]
@@ -211,8 +211,16 @@ class InputSignal:
         if self.nu == 0:
             return np.zeros((ts.size, 0))
         if not self.has_callables:
-            u = np.asarray(self._fexpr.map(ts.size)(ts, np.zeros((0, ts.size))), dtype=float)
-            u = u.reshape(self.nu, ts.size).T
+            n = ts.size
+            m = n if n <= 64 else 1 << (n - 1).bit_length()  # few distinct mapped Functions
+            maps = self.__dict__.setdefault("_maps", {})
+            if m not in maps:
+                if len(maps) > 8:
+                    maps.clear()
+                maps[m] = self._fexpr.map(m)
+            tp = np.concatenate([ts, np.repeat(ts[-1:], m - n)]) if m > n else ts
+            u = np.asarray(maps[m](tp, np.zeros((0, m))), dtype=float)
+            u = u.reshape(self.nu, m).T[:n]
             if not np.isfinite(u).all():
                 k = int(np.argmin(np.isfinite(u).all(axis=1)))
                 self.check_finite(u[k], ts[k])

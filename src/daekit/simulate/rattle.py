@@ -53,6 +53,7 @@ import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
 from ..wording import count
+from .progress import Progress
 
 __all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
 
@@ -521,7 +522,8 @@ def _bind_inputs(
             expr = ca.repmat(expr, len(elems), 1)
         if expr.numel() != len(elems):
             raise SimulationError(
-                f"RATTLE: input {key!r} has {len(elems)} element(s) but {expr.numel()} values"
+                f"RATTLE: input {key!r} has {count(len(elems), 'element')} but "
+                f"{count(expr.numel(), 'value')}"
             )
         for k, i in enumerate(elems):
             vals[i] = expr[k]
@@ -816,7 +818,8 @@ def simulate_rattle(
     """
     if unknown:
         raise ModelError(
-            f"simulate(method='rattle'): unknown option(s) {sorted(unknown)}; RATTLE takes dt, "
+            f"simulate(method='rattle'): unknown {'option' if len(unknown) == 1 else 'options'} "
+            f"{sorted(unknown)}; RATTLE takes dt, "
             "params, inputs, newton_iter, max_newton_iter, tol, init_tol, progress (rtol and "
             "atol do not apply: the step size dt sets the accuracy)"
         )
@@ -859,7 +862,7 @@ def simulate_rattle(
     i = 0
     nout = tt.size - 1
     Xcur = ca.DM(X0)
-    bar = _Progress(tt[0], tt[-1]) if progress else None
+    bar = Progress(progress, tt[0], tt[-1], "RATTLE") if progress else None
     while i < nout:
         k = int(nsteps[i])
         j = i
@@ -988,30 +991,8 @@ def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
             arr = np.repeat(arr, len(elems))
         if arr.size != len(elems) or not np.all(np.isfinite(arr)):
             raise ModelError(
-                f"RATTLE: parameter {key!r} needs {len(elems)} finite value(s), got {val!r}"
+                f"RATTLE: parameter {key!r} needs {count(len(elems), 'finite value')}, got {val!r}"
             )
         pv[elems] = arr
     return pv
 
-
-class _Progress:
-    """A minimal progress bar on stderr."""
-
-    def __init__(self, t0: float, t1: float) -> None:
-        import sys
-
-        self.t0, self.t1, self.out = t0, t1, sys.stderr
-        self.last = -1
-
-    def update(self, t: float) -> None:
-        frac = (t - self.t0) / (self.t1 - self.t0) if self.t1 > self.t0 else 1.0
-        pct = int(100 * frac)
-        if pct != self.last:
-            self.last = pct
-            bar = "#" * (pct // 4)
-            self.out.write(f"\rRATTLE [{bar:<25}] {pct:3d}%  t = {t:.4g}")
-            self.out.flush()
-
-    def close(self) -> None:
-        self.out.write("\n")
-        self.out.flush()

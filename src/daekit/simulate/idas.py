@@ -434,6 +434,7 @@ def simulate(
     method: str = "idas",
     progress: bool = False,
     poles=(-1.0, -1.0),
+    events: bool = True,
     **options,
 ) -> Trajectory:
     """Simulate a reduced (index-1) DAE and return its :class:`Trajectory`.
@@ -469,6 +470,11 @@ def simulate(
         bar shows its start and end; projection and dummy derivatives advance it per step).
     poles : pair of float
         Baumgarte poles.
+    events : bool
+        Honour the model's events (:meth:`daekit.Model.event`) and stop at the switches of its
+        equations (``if_else``, ``fabs``, ...); see :mod:`daekit.simulate.events`, whose
+        keywords ``event_spacing``, ``zeno_count``, ``zeno_window`` and ``max_events`` may be
+        given here. ``False`` integrates the equations as they are.
     **options
         Passed to the CasADi IDAS integrator (e.g. ``max_num_steps``). For an index-2 system
         (``dk.ggl(r)``) ``suppress_algebraic=True`` is the default.
@@ -508,6 +514,23 @@ def simulate(
         )
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
+    event_keys = ("event_spacing", "zeno_count", "zeno_window", "max_events")
+    if events:
+        from .events import has_events, simulate_events
+
+        if has_events(r):
+            if isinstance(stabilization, str) and stabilization.lower() == "none":
+                stabilization = None
+            if stabilization not in STABILIZATIONS:
+                raise InputError(
+                    f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
+                    "'projection' or 'dummy_derivatives'"
+                )
+            _check_grid(t)
+            return simulate_events(r, t, init, inputs=inputs, params=params,
+                                   stabilization=stabilization, rtol=rtol, atol=atol,
+                                   poles=poles, **options)
+    options = {k: v for k, v in options.items() if k not in event_keys}
     if isinstance(stabilization, str) and stabilization.lower() == "none":
         stabilization = None
     if stabilization not in STABILIZATIONS:

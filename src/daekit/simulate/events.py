@@ -1,0 +1,495 @@
+"""Event-driven simulation: declared events, resets, and the model's own switches.
+
+:func:`daekit.simulate` comes here when the model has events (:meth:`daekit.Model.event`) or
+its equations contain switches (``if_else`` conditions, ``fabs``/``sign``/``fmin``/``fmax``
+kinks; :mod:`daekit.events`). The time span is integrated in *segments*, each one ordinary run
+of the chosen remedy (none, Baumgarte, projection, dummy derivatives, a GGL system), on a grid
+of the output points plus check points.
+
+Monitoring
+    Every event function and switching function is evaluated at every point of a segment's
+    grid: the output points and extra check points so that no check interval is longer than
+    ``event_spacing`` (default: the smaller of the output spacing and 1/200 of the span). A
+    crossing is a change of sign between two consecutive check points (in the event's
+    ``direction``). **Rule for double crossings:** a function that crosses zero twice inside
+    one check interval is not seen; make ``event_spacing`` shorter than the shortest time the
+    function can spend on one side of zero.
+Location
+    By re-integration from the last check point before the crossing (same remedy's system,
+    same tolerances) with the Illinois variant of regula falsi on the crossing function,
+    until the bracket is shorter than ``rtol * max(1, |t|)``. The event time is the right end of
+    the bracket (just past the crossing); its accuracy is that of the integrated solution,
+    about ``atol / |g'|``. Functions that crossed within that bracket fire together
+    (*simultaneous*), declared events in declaration order, then switches.
+After an event
+    The trajectory gets a row at the event time with the values just before it. Resets are
+    evaluated on these values, applied in order, and consistency is restored on the reduced
+    system by :func:`daekit.simulate.reset.restore` (reset values kept where the constraints
+    allow; velocity-level invariants re-imposed by a minimal-change projection,
+    mass-weighted when the mass matrix is known; positions untouched by a velocity reset).
+    A switch flips its branch (the integrated equations keep every switch frozen in its branch,
+    so a segment is smooth). With dummy derivatives the state selection is re-checked at the
+    post-event point and remade when its pivot is poor. The next segment (a restart of the
+    integrator) starts there; its first row, at the same time, holds the post-event values. A
+    function that just fired is re-armed once it has left a band around zero ten times the
+    size of its values in the final bracket (no chattering at the restart). A terminal event
+    ends the trajectory at the event row.
+Zeno behaviour
+    ``zeno_count`` (default 25) events within a window shorter than ``zeno_window`` (default
+    ``1e-6`` of the span), or more than ``max_events`` (default 10,000) in all, end the run with a
+    :class:`~daekit.errors.SimulationError` carrying the trajectory so far and, for a geometric
+    sequence of event times, the estimated accumulation time.
+Cost
+    A segment runs to the end of the span or to ``t + H`` (``H`` starts at a quarter of the span,
+    is set to three times the last gap between events after each event and doubled after a
+    segment without one), so little is integrated past an event and thrown away.
+
+``traj.events`` lists ``(t, name)`` (a switch is named ``switch:<condition>``),
+``traj.stats["events"]`` counts them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+
+import casadi as ca
+import numpy as np
+
+from ..errors import SimulationError
+from ..events import branch_values, event_symbols, freeze_switches, reduced_events
+from .reset import restore
+from .trajectory import Trajectory
+
+__all__ = ["simulate_events", "has_events"]
+
+_SUM_STATS = ("steps", "residual_evaluations", "jacobian_evaluations", "error_test_failures",
+              "newton_failures", "integrator_wall_time", "intervals")
+
+
+def has_events(r) -> bool:
+    """True if ``r``'s model declares events or ``r``'s equations contain switches.
+
+    >>> import daekit as dk
+    >>> has_events(dk.reduce_index(dk.examples.pendulum_planar()))
+    False
+    """
+    from ..events import switches
+
+    if getattr(getattr(r, "model", None), "events", None):
+        return True
+    key = "_has_switches"
+    if key not in r.info:
+        r.info[key] = bool(switches(r))
+    return bool(r.info[key])
+
+
+class _Monitors:
+    """Event functions (by original names) and switching functions (by r's symbols)."""
+
+    def __init__(self, r, rf, found, pv_len: int) -> None:
+        self.events = reduced_events(r) if getattr(r, "model", None) is not None else []
+        model = r.model
+        self.names = [e.name for e in self.events] + [f"switch:{s.text}" for s in found]
+        self.dirs = [e.direction for e in self.events] + [0] * len(found)
+        self.n_ev = len(self.events)
+        self.found = found
+        decl = model.events if model is not None else []
+        syms, used = [], []
+        for ev in decl:
+            for s, nm in zip(ca.symvar(ev.expr), event_symbols(model, ev.expr), strict=True):
+                if nm not in used:
+                    used.append(nm)
+                    syms.append(s)
+            for val in ev.reset.values():
+                for s, nm in zip(ca.symvar(val), event_symbols(model, val), strict=True):
+                    if nm not in used:
+                        used.append(nm)
+                        syms.append(s)
+        self.used = used
+        vec = ca.vertcat(*syms) if syms else ca.SX(0, 1)
+        self.decl = decl
+        self.fev = ca.Function("events", [vec], [ca.vertcat(*[e.expr for e in decl])
+                                                 if decl else ca.SX(0, 1)])
+        self.freset = [ca.Function(f"reset_{e.name}", [vec],
+                                   [ca.vertcat(*e.reset.values()) if e.reset else ca.SX(0, 1)])
+                       for e in decl]
+        self.rf = rf
+        self.fsw = (ca.Function("switches", [rf.t, rf.x, rf.z, rf.u, rf.p],
+                                [ca.vertcat(*[s.expr for s in found])]) if found else None)
+
+    def _vec(self, values: Mapping, t) -> np.ndarray:
+        n = np.size(t)
+        cols = []
+        for nm in self.used:
+            if nm == "t":
+                cols.append(np.broadcast_to(np.asarray(t, float), (n,)))
+            else:
+                cols.append(np.asarray(values[nm], dtype=float).reshape(-1)[:n])
+        return np.column_stack(cols) if cols else np.zeros((n, 0))
+
+    def values(self, traj: Trajectory, pv) -> np.ndarray:
+        """(rows, monitors) values on a trajectory."""
+        n = traj.t.size
+        out = np.zeros((n, len(self.names)))
+        if self.n_ev:
+            V = self._vec(traj.values, traj.t)
+            F = self.fev.map(n)
+            out[:, : self.n_ev] = np.asarray(F(V.T), dtype=float).reshape(self.n_ev, n).T
+        if self.fsw is not None:
+            rf = self.rf
+            X = np.column_stack([traj.values[nm] for nm in rf.x_names]) if rf.nx else \
+                np.zeros((n, 0))
+            Z = np.column_stack([traj.values.get(nm, np.zeros(n)) for nm in rf.z_names]) \
+                if rf.nz else np.zeros((n, 0))
+            U = np.column_stack([traj.values.get(nm, np.zeros(n)) for nm in rf.u_names]) \
+                if rf.nu else np.zeros((n, 0))
+            F = self.fsw.map(n)
+            P = np.repeat(np.asarray(pv, float).reshape(-1, 1), n, axis=1)
+            res = F(traj.t.reshape(1, -1), X.T, Z.T, U.T, P)
+            out[:, self.n_ev:] = np.asarray(res, dtype=float).reshape(len(self.found), n).T
+        return out
+
+    def reset_targets(self, k: int, row: Mapping, t: float) -> dict[str, float]:
+        ev = self.decl[k]
+        if not ev.reset:
+            return {}
+        v = self._vec({n: np.atleast_1d(row[n]) for n in self.used if n != "t"}, t)
+        vals = np.asarray(self.freset[k](v.T), dtype=float).ravel()
+        return dict(zip(ev.reset, vals, strict=True))
+
+
+def _row(traj: Trajectory, j: int) -> dict[str, float]:
+    return {n: float(a[j]) for n, a in traj.values.items()}
+
+
+def _init_of(r, t, row: Mapping, pv, u):
+    from ..initialize import InitialValues
+
+    x0 = np.array([row.get(n, 0.0) for n in r.x_names], dtype=float)
+    z0 = np.array([row.get(n, 0.0) for n in r.z_names], dtype=float)
+    return InitialValues(float(t), x0, z0, np.asarray(u, float), np.asarray(pv, float),
+                         dict(row), x_names=list(r.x_names), z_names=list(r.z_names))
+
+
+def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rtol=1e-8,
+                    atol=1e-8, poles=(-1.0, -1.0), event_spacing: float | None = None,
+                    zeno_count: int = 25, zeno_window: float | None = None,
+                    max_events: int = 10000, **options) -> Trajectory:
+    """Simulate ``r`` with its model's events and its switches (see the module docstring).
+
+    Called by :func:`daekit.simulate` (same arguments); the extra keywords ``event_spacing``,
+    ``zeno_count``, ``zeno_window`` and ``max_events`` may be passed to it.
+
+    >>> import numpy as np, daekit as dk
+    >>> m = dk.Model("fall"); h = m.state("h")
+    >>> _ = m.equation(m.der(h, 2) + 9.81, name="gravity")
+    >>> _ = m.event(h, name="floor", direction=-1, reset={"der(h)": -m.der(h)})
+    >>> r = dk.reduce_index(m)
+    >>> init = dk.initialize(r, fixed={"h": 1.0, "der(h)": 0.0})
+    >>> traj = dk.simulate(r, np.linspace(0, 1, 11), init, rtol=1e-10, atol=1e-10)
+    >>> [(round(te, 8), n) for te, n in traj.events]     # sqrt(2 / 9.81) = 0.45152364
+    [(0.45152364, 'floor'), (1.0, 'floor')]
+    """
+    from ..reduction import baumgarte, reselect, selection_condition
+    from .idas import simulate
+    from .inputs import InputSignal, resolve_params
+
+    wall0 = time.perf_counter()
+    tg = np.asarray(t, dtype=float).ravel()
+    t0, tf = float(tg[0]), float(tg[-1])
+    span = tf - t0
+    if stabilization == "baumgarte":
+        r_work, seg_stab = baumgarte(r, poles=poles), None
+    elif stabilization in ("projection", "dummy_derivatives"):
+        r_work, seg_stab = r, stabilization
+    else:
+        r_work, seg_stab = r, None
+    dummy = stabilization == "dummy_derivatives"
+    rf, found = (r_work, []) if dummy else freeze_switches(r_work)
+    mon = _Monitors(r_work, rf, found, r_work.n_p)
+    n_mon = len(mon.names)
+    pv_user = resolve_params(r_work, params)
+    sig = InputSignal(r_work, inputs)
+
+    # the first point: consistent initial values of r (through simulate's own path)
+    first = simulate(r_work, tg[:2], init, inputs=inputs, params=params,
+                     stabilization=seg_stab, rtol=rtol, atol=atol, events=False, **options)
+    row0 = _row(first, 0)
+    x0 = np.array([row0.get(n, 0.0) for n in r_work.x_names])
+    z0 = np.array([row0.get(n, 0.0) for n in r_work.z_names])
+    u0 = sig.value(t0)
+    branches = branch_values(found, r_work, t0, x0, z0, u0, pv_user)
+
+    def pv_of(b) -> np.ndarray:
+        return np.concatenate([pv_user, b]) if found else pv_user
+
+    def params_of(b) -> dict:
+        out = dict(params or {})
+        for k, v in enumerate(b):
+            out[f"__switch{k}"] = float(v)
+        return out
+
+    spacing = float(np.min(np.diff(tg))) if tg.size > 1 else span
+    dt_check = float(event_spacing) if event_spacing else min(spacing, span / 200.0)
+    if zeno_window is None:
+        zeno_window = 1e-6 * max(span, 1e-300)
+
+    r_cur = rf
+    if dummy:
+        r_cur = r_work
+    init_cur = _init_of(r_cur, t0, row0, pv_of(branches), u0)
+    t_cur = t0
+    H = span / 4.0
+    ref = [None] * n_mon  # sign each monitor had last (None: disarmed)
+    band = [0.0] * n_mon
+    kept_t, kept_rows, kept_inv = [], [], []
+    inv_names: list[str] = list(first.invariant_names)
+    events: list[tuple[float, str]] = []
+    stats: dict = {"segments": 0, "event_locations": 0}
+    is_user_time = set(tg.tolist())
+    first_row_is_post = False  # True: the next segment's row 0 is a post-event row
+
+    def keep(traj: Trajectory, j: int) -> None:
+        kept_t.append(float(traj.t[j]))
+        kept_rows.append(_row(traj, j))
+        kept_inv.append(traj.invariants[j].copy() if traj.invariants.size else np.zeros(0))
+
+    def add_stats(traj: Trajectory) -> None:
+        for k in _SUM_STATS:
+            v = traj.stats.get(k)
+            if isinstance(v, (int, float)):
+                stats[k] = stats.get(k, 0) + v
+
+    def partial_traj() -> Trajectory:
+        return _assemble(kept_t, kept_rows, kept_inv, inv_names, stats, events)
+
+    def run(rr, grid, ini, b, stab):
+        return simulate(rr, grid, ini, inputs=inputs, params=params_of(b), stabilization=stab,
+                        rtol=rtol, atol=atol, events=False, **options)
+
+    while t_cur < tf - 1e-14 * max(1.0, abs(tf)):
+        t_end = min(tf, t_cur + H)
+        if tf - t_end < 1e-9 * span:
+            t_end = tf
+        users = tg[(tg > t_cur) & (tg < t_end)]
+        pts = [t_cur, t_end]
+        ncheck = max(1, int(math.ceil((t_end - t_cur) / dt_check)))
+        pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
+        pts = pts[np.concatenate([[True], np.diff(pts) > 1e-12 * max(1.0, abs(t_end))])]
+        if pts.size < 2:
+            break
+        stats["segments"] += 1
+        failure = None
+        try:
+            seg = run(r_cur, pts, init_cur, branches, seg_stab)
+        except SimulationError as exc:
+            if exc.trajectory is None or len(exc.trajectory) < 1:
+                exc.trajectory = partial_traj()
+                raise
+            seg, failure = exc.trajectory, exc
+        add_stats(seg)
+        G = mon.values(seg, pv_of(branches))
+        hit = None  # (j, monitors that crossed between rows j-1 and j)
+        for j in range(seg.t.size):
+            crossed = []
+            for i in range(n_mon):
+                g = G[j, i]
+                if ref[i] is None:
+                    if abs(g) > band[i]:
+                        ref[i] = 1.0 if g > 0 else -1.0
+                    continue
+                s = 1.0 if g > 0 else (-1.0 if g < 0 else 0.0)
+                if s != ref[i] and j > 0:
+                    rising = ref[i] < 0
+                    if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
+                        crossed.append(i)
+                    if s != 0:
+                        ref[i] = s
+                elif s != 0:
+                    ref[i] = s
+            if crossed:
+                hit = (j, crossed)
+                break
+        if hit is None:
+            last = seg.t.size - 1
+            for j in range(seg.t.size):
+                if j == 0 and not first_row_is_post and kept_t:
+                    continue
+                if seg.t[j] in is_user_time or (j == 0 and first_row_is_post) or not kept_t:
+                    keep(seg, j)
+            first_row_is_post = False
+            if failure is not None:
+                failure.trajectory = partial_traj()
+                raise failure
+            t_cur = float(seg.t[last])
+            init_cur = _init_of(r_cur, t_cur, _row(seg, last), pv_of(branches),
+                                sig.value(t_cur))
+            H *= 2.0
+            continue
+        j, crossed = hit
+        for jj in range(j):
+            if jj == 0 and not first_row_is_post and kept_t:
+                continue
+            if seg.t[jj] in is_user_time or (jj == 0 and first_row_is_post) or not kept_t:
+                keep(seg, jj)
+        first_row_is_post = False
+        # --- location: Illinois on the earliest crossing, re-integrating from row j-1
+        ta = float(seg.t[j - 1])
+        row_a = _row(seg, j - 1)
+        r_loc = r_cur
+        if dummy:
+            xa = np.array([row_a.get(n, 0.0) for n in r_loc.x_names])
+            za = np.array([row_a.get(n, 0.0) for n in r_loc.z_names])
+            try:
+                cond = float(selection_condition(r_loc, xa, za, sig.value(ta), pv_user, ta))
+            except Exception:  # noqa: BLE001 - treat as poor
+                cond = math.inf
+            if not (cond < 3.0):
+                r_loc = reselect(r_loc, row_a)
+        init_a = _init_of(r_loc, ta, row_a, pv_of(branches), sig.value(ta))
+        ga, gb = G[j - 1], G[j]
+        tb = float(seg.t[j])
+        # the earliest crossing by linear interpolation picks the function to locate on
+        lin = {i: ta + (tb - ta) * ga[i] / (ga[i] - gb[i]) if ga[i] != gb[i] else tb
+               for i in crossed}
+        lead = min(crossed, key=lambda i: (lin[i], i))
+
+        def value_at(tt: float):
+            stats["event_locations"] += 1
+            try:
+                tr = run(r_loc, np.array([ta, tt]), init_a, branches, None)
+            except SimulationError as exc:
+                raise SimulationError(
+                    f"simulate: locating the event {mon.names[lead]!r} in [{ta:.10g}, {tb:.10g}] "
+                    f"failed: {exc}", t=float(tt), trajectory=partial_traj()) from None
+            return mon.values(tr, pv_of(branches))[-1], tr
+
+        tl, tr_ = ta, tb
+        gl, gr = float(ga[lead]), float(gb[lead])
+        trow, tvals = None, None
+        side = 0
+        tol_t = rtol * max(1.0, abs(tb))
+        for _ in range(200):
+            if tr_ - tl <= tol_t:
+                break
+            tm = tl + (tr_ - tl) * gl / (gl - gr) if gl != gr else 0.5 * (tl + tr_)
+            tm = min(max(tm, tl + 0.05 * tol_t), tr_ - 0.05 * tol_t)
+            vals, tr_traj = value_at(tm)
+            gm = float(vals[lead])
+            if (gm > 0) == (gl > 0) and gm != 0:
+                tl, gl = tm, gm
+                if side == -1:
+                    gr *= 0.5
+                side = -1
+            else:
+                tr_, gr = tm, gm
+                trow, tvals = tr_traj, vals
+                if side == 1:
+                    gl *= 0.5
+                side = 1
+        if trow is None or trow.t[-1] != tr_:
+            tvals, trow = value_at(tr_)
+        te = float(tr_)
+        pre = _row(trow, trow.t.size - 1)
+        # simultaneous: every monitor whose sign changed between row j-1 and te
+        fired = []
+        for i in range(n_mon):
+            if i in crossed or (ref[i] is not None and np.sign(tvals[i]) != np.sign(ga[i])
+                                and np.sign(tvals[i]) != 0):
+                rising = ga[i] < 0
+                if i == lead or mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
+                    if i == lead or np.sign(tvals[i]) != np.sign(ga[i]):
+                        fired.append(i)
+        fired.sort()
+        kept_t.append(te)
+        kept_rows.append(pre)
+        kept_inv.append(trow.invariants[-1].copy() if trow.invariants.size else np.zeros(0))
+        for i in fired:
+            events.append((te, mon.names[i]))
+            ref[i] = None
+            band[i] = 10.0 * max(abs(gl), abs(gr), abs(float(tvals[i])))
+        for i in range(n_mon):
+            if i not in fired and ref[i] is not None and tvals[i] != 0:
+                ref[i] = 1.0 if tvals[i] > 0 else -1.0
+        stats["events"] = len(events)
+        if any(i < mon.n_ev and mon.decl[i].terminal for i in fired):
+            stats["terminated_by"] = next(mon.names[i] for i in fired
+                                          if i < mon.n_ev and mon.decl[i].terminal)
+            break
+        # Zeno
+        if len(events) > max_events or (
+            len(events) >= zeno_count
+            and events[-1][0] - events[-zeno_count][0] < zeno_window
+        ):
+            times = np.array([e[0] for e in events[-zeno_count:]])
+            gaps = np.diff(times)
+            est = ""
+            if gaps.size >= 3 and gaps[-2] > 0:
+                rho = gaps[-1] / gaps[-2]
+                if 0 < rho < 1:
+                    est = (f"; the event times accumulate geometrically (ratio {rho:.3g}) at "
+                           f"t = {times[-1] + gaps[-1] * rho / (1 - rho):.10g}")
+            raise SimulationError(
+                f"simulate: Zeno behaviour: {len(events)} events, the last {zeno_count} of them "
+                f"({', '.join(sorted({e[1] for e in events[-zeno_count:]}))}) within "
+                f"{times[-1] - times[0]:.3g} (zeno_window = {zeno_window:.3g}){est}. Stop the "
+                "simulation there with a terminal event (e.g. when the speed is small), or "
+                "change the model. The trajectory up to the last event is attached as "
+                ".trajectory.",
+                t=te,
+                trajectory=partial_traj(),
+            )
+        # --- resets, consistency, switch branches
+        ue = sig.value(te)
+        xe = np.array([pre.get(n, 0.0) for n in r_loc.x_names])
+        ze = np.array([pre.get(n, 0.0) for n in r_loc.z_names])
+        post = dict(pre)
+        for i in fired:
+            if i < mon.n_ev:
+                targets = mon.reset_targets(i, post, te)
+                if targets:
+                    xe, ze, info = restore(r_loc, te, xe, ze, ue, pv_of(branches), targets)
+                    stats["max_reset_deviation"] = max(stats.get("max_reset_deviation", 0.0),
+                                                       info["kept"])
+                    stats["reset_metric"] = info["metric"]
+                    post.update(zip(r_loc.x_names, xe, strict=True))
+                    post.update(zip(r_loc.z_names, ze, strict=True))
+        if any(i >= mon.n_ev for i in fired):
+            branches = branch_values(found, r_work, te, xe, ze, ue, pv_user)
+        r_cur = r_loc
+        if dummy:
+            try:
+                cond = float(selection_condition(r_cur, xe, ze, ue, pv_user, te))
+            except Exception:  # noqa: BLE001
+                cond = math.inf
+            if not (cond < 3.0):
+                r_new = reselect(r_cur, (xe, ze))
+                from ..reduction import map_values
+
+                xe, ze = map_values(r_cur, r_new, xe, ze)
+                r_cur = r_new
+        init_cur = _init_of(r_cur, te, dict(zip(r_cur.x_names, xe, strict=True))
+                            | dict(zip(r_cur.z_names, ze, strict=True)), pv_of(branches), ue)
+        gap = te - events[-len(fired) - 1][0] if len(events) > len(fired) else te - t0
+        H = max(3.0 * gap, 4.0 * dt_check, 1e-6 * span)
+        t_cur = te
+        first_row_is_post = True
+        if te >= tf - 1e-14 * max(1.0, abs(tf)):
+            break
+    stats["events"] = len(events)
+    stats["wall_time"] = time.perf_counter() - wall0
+    stats["stabilization"] = stabilization
+    return _assemble(kept_t, kept_rows, kept_inv, inv_names, stats, events)
+
+
+def _assemble(ts, rows, invs, inv_names, stats, events) -> Trajectory:
+    names = list(rows[0]) if rows else []
+    vals = {n: np.array([rw.get(n, np.nan) for rw in rows], dtype=float) for n in names}
+    ninv = len(inv_names)
+    inv = np.array([iv if iv.size == ninv else np.full(ninv, np.nan) for iv in invs]) \
+        if invs else np.zeros((0, ninv))
+    traj = Trajectory(np.array(ts, dtype=float), vals, inv.reshape(len(ts), ninv),
+                      inv_names, dict(stats), events=list(events))
+    return traj

@@ -232,7 +232,12 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         return out
 
     spacing = float(np.min(np.diff(tg))) if tg.size > 1 else span
-    dt_check = float(event_spacing) if event_spacing else min(spacing, span / 200.0)
+    if event_spacing:
+        dt_check = float(event_spacing)
+    elif seg_stab is not None:  # projection, dummy derivatives restart at every grid point
+        dt_check = spacing
+    else:
+        dt_check = min(spacing, span / 200.0)
     if zeno_window is None:
         zeno_window = 1e-6 * max(span, 1e-300)
 
@@ -336,8 +341,10 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                 keep(seg, jj)
         first_row_is_post = False
         # --- location: Illinois on the earliest crossing, re-integrating from row j-1
-        ta = float(seg.t[j - 1])
-        row_a = _row(seg, j - 1)
+        # re-integrate from one check point further back (never over a tiny interval)
+        ja = j - 2 if j >= 2 else j - 1
+        ta = float(seg.t[ja])
+        row_a = _row(seg, ja)
         r_loc = r_cur
         if dummy:
             xa = np.array([row_a.get(n, 0.0) for n in r_loc.x_names])
@@ -351,8 +358,9 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         init_a = _init_of(r_loc, ta, row_a, pv_of(branches), sig.value(ta))
         ga, gb = G[j - 1], G[j]
         tb = float(seg.t[j])
+        t_left = float(seg.t[j - 1])
         # the earliest crossing by linear interpolation picks the function to locate on
-        lin = {i: ta + (tb - ta) * ga[i] / (ga[i] - gb[i]) if ga[i] != gb[i] else tb
+        lin = {i: t_left + (tb - t_left) * ga[i] / (ga[i] - gb[i]) if ga[i] != gb[i] else tb
                for i in crossed}
         lead = min(crossed, key=lambda i: (lin[i], i))
 
@@ -366,7 +374,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                     f"failed: {exc}", t=float(tt), trajectory=partial_traj()) from None
             return mon.values(tr, pv_of(branches))[-1], tr
 
-        tl, tr_ = ta, tb
+        tl, tr_ = t_left, tb
         gl, gr = float(ga[lead]), float(gb[lead])
         trow, tvals = None, None
         side = 0

@@ -9,7 +9,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 3
 """
 
-from . import examples, mechanics, structure
+from . import events, examples, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
 from .errors import (
     DaekitError,
@@ -70,6 +70,7 @@ __all__ = [
     "StructuralError",
     "analyze",
     "differential_index",
+    "events",
     "examples",
     "is_index1",
     "structure",

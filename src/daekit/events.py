@@ -38,7 +38,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError
-from .model import element_name
+from .model import element_name, parse_name
 
 __all__ = ["ReducedEvent", "Switch", "reduced_events", "switches", "freeze_switches",
            "event_symbols", "branch_values"]
@@ -144,6 +144,10 @@ def reduced_events(r) -> list[ReducedEvent]:
     if cache is not None and cache[0] == len(model.events) and cache[1] is r.variables:
         return cache[2]
     olds, news = _name_map(r)
+    top: dict[str, int] = {}
+    for nm in r.variables:
+        b, o, _ = parse_name(nm)
+        top[b] = max(top.get(b, 0), o)
     known = {s.element_hash() for s in olds} | {model.t.element_hash()}
     out = []
     for k, ev in enumerate(model.events):
@@ -158,6 +162,13 @@ def reduced_events(r) -> list[ReducedEvent]:
                         "lower derivatives"
                     )
         for key in ev.reset:
+            base, order, _ = parse_name(key)
+            if key in r.variables and order >= top.get(base, 0) and order > 0:
+                raise ModelError(
+                    f"model {model.name!r}, event {ev.name!r}: reset {key!r} is the highest "
+                    f"derivative of {base!r}, which the equations determine (an acceleration); "
+                    "reset positions and velocities only"
+                )
             if key not in r.variables:
                 raise ModelError(
                     f"model {model.name!r}, event {ev.name!r}: reset {key!r} is not a quantity "

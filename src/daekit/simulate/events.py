@@ -2,9 +2,19 @@
 
 :func:`daekit.simulate` comes here when the model has events (:meth:`daekit.Model.event`) or
 its equations contain switches (``if_else`` conditions, ``fabs``/``sign``/``fmin``/``fmax``
-kinks; :mod:`daekit.events`). The time span is integrated in *segments*, each one ordinary run
-of the chosen remedy (none, Baumgarte, projection, dummy derivatives, a GGL system), on a grid
-of the output points plus check points.
+kinks; :mod:`daekit.events`). Two paths share the rules below:
+
+* without stabilization and with Baumgarte, the events are a monitor,
+  :class:`EventMonitor`, of the event-driven driver :mod:`daekit.simulate.driver` (one
+  continuous IDAS run, interrupted only at an event; location by the driver's Illinois
+  re-integration from the last row before the crossing, to ``rtol * max(1, |t|)``; the event
+  point is the last one before the crossing); the switch branches ride along as constant
+  states (:func:`with_branch_states`), so flipping one is a reset;
+* with projection, dummy derivatives or a GGL (index-2) system the time span is integrated in
+  *segments*, each an ordinary run of that remedy through :func:`daekit.simulate`, on a grid
+  of the output points plus check points, and located by re-integration as below (the event
+  point is the first one past the crossing). This path was written before the driver existed;
+  it moves onto the driver when the driver's projection and dummy-derivative monitors do.
 
 Monitoring
     Every event function and switching function is evaluated at every point of a segment's
@@ -38,9 +48,9 @@ Zeno behaviour
     ``zeno_count`` (default 10) events within a window shorter than ``zeno_window`` (default
     ``1e-4`` of the span), or ``zeno_count`` gaps between events each shorter than the one
     before (ratio at most 0.99) with the geometric sum of the rest, the time left to the
-    accumulation point, below 1/100 of the span, or more than ``max_events`` (default 10,000) in all, end the run with a
-    :class:`~daekit.errors.SimulationError` carrying the trajectory so far and, for a geometric
-    sequence of event times, the estimated accumulation time.
+    accumulation point, below 1/100 of the span, or more than ``max_events`` (default 10,000)
+    in all, end the run with a :class:`~daekit.errors.SimulationError` carrying the trajectory
+    so far and, for a geometric sequence of event times, the estimated accumulation time.
 Cost
     A segment runs to the end of the span or to ``t + H`` (``H`` starts at a quarter of the span,
     is set to three times the last gap between events after each event and doubled after a
@@ -63,10 +73,11 @@ import numpy as np
 
 from ..errors import SimulationError
 from ..events import branch_values, event_symbols, freeze_switches, reduced_events
+from .driver import Action, Firing, Monitor
 from .reset import restore
 from .trajectory import Trajectory
 
-__all__ = ["simulate_events", "has_events"]
+__all__ = ["simulate_events", "has_events", "EventMonitor", "with_branch_states"]
 
 _SUM_STATS = ("steps", "residual_evaluations", "jacobian_evaluations", "error_test_failures",
               "newton_failures", "integrator_wall_time", "intervals")
@@ -164,6 +175,272 @@ class _Monitors:
         return dict(zip(ev.reset, vals, strict=True))
 
 
+def with_branch_states(rf, n_branch: int):
+    """``rf`` (from :func:`daekit.events.freeze_switches`) with its branch parameters moved
+    into the state as constants (``b' = 0``): a monitor can then flip a branch by resetting a
+    state, the way the driver restarts. Returns ``rf`` itself without branches.
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> from daekit.events import freeze_switches
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
+    >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -ca.fabs(x - 1),
+    ...     ca.SX(0, 1), ca.SX(0, 1), [], ["x"], [], [], [], np.zeros(0), {"x": x})
+    >>> rb = with_branch_states(freeze_switches(r)[0], 1)
+    >>> rb.x_names, rb.p_names
+    (['x', '__switch0'], [])
+    """
+    import dataclasses
+
+    if n_branch == 0:
+        return rf
+    npo = rf.n_p - n_branch
+    b = rf.p[npo:]
+    return dataclasses.replace(
+        rf, x=ca.vertcat(rf.x, b), ode=ca.vertcat(rf.ode, ca.SX.zeros(n_branch)),
+        p=rf.p[:npo], p_names=list(rf.p_names[:npo]),
+        p_values=np.asarray(rf.p_values, float)[:npo],
+        x_names=list(rf.x_names) + list(rf.p_names[npo:]),
+        info={k: v for k, v in rf.info.items() if not k.startswith("_")},
+    )
+
+
+def _flip(kind: str, b: float) -> float:
+    return -b if kind in ("fabs", "sign") else 1.0 - b
+
+
+class EventMonitor(Monitor):
+    """The model's events and switches as a monitor of the event-driven driver
+    (:class:`daekit.simulate.driver.Monitor`).
+
+    Built by :func:`simulate_events` for a system ``rb`` (:func:`with_branch_states` of the
+    frozen system); the same rules as the module docstring: sign changes at the segment's rows
+    (``check_dt`` caps their spacing), location by the driver's Illinois re-integration,
+    re-arming bands, simultaneous firings in declaration order, resets through
+    :func:`daekit.simulate.reset.restore`, Zeno rules. ``log`` holds ``(t, name)`` of every
+    event; ``zeno`` the message when the run was stopped for Zeno behaviour.
+    """
+
+    name = "events"
+
+    def __init__(self, r_work, rb, found, monitors: _Monitors, n_x: int, pv, dt_check: float,
+                 span: float, zeno_count: int, zeno_window: float, max_events: int) -> None:
+        self.r_work, self.rb, self.found, self.mon = r_work, rb, found, monitors
+        self.n_x = n_x
+        self.pv = np.asarray(pv, float)
+        self.check_dt = dt_check
+        self.dt_check = dt_check
+        self.span = span
+        self.zeno_count, self.zeno_window, self.max_events = zeno_count, zeno_window, max_events
+        exprs = [e.expr for e in monitors.events] + [sw.expr for sw in found]
+        self.n = len(exprs)
+        self.g = ca.Function("monitors", [rb.t, rb.x, rb.z, rb.u, rb.p],
+                             [ca.vertcat(*exprs) if exprs else ca.SX(0, 1)])
+        self.resets = [ca.Function(f"reset_{e.name}", [rb.t, rb.x, rb.z, rb.u, rb.p],
+                                   [ca.vertcat(*e.reset.values()) if e.reset else ca.SX(0, 1)])
+                       for e in monitors.events]
+        self.log: list[tuple[float, str]] = []
+        self.zeno: str | None = None
+        self.last_gap = 0.0
+        self.stats: dict = {}
+
+    def _G(self, t, X, Z, U) -> np.ndarray:
+        n = np.size(t)
+        F = self.g.map(n)
+        P = np.repeat(self.pv.reshape(-1, 1), n, axis=1)
+        out = F(np.asarray(t, float).reshape(1, -1), np.asarray(X).T, np.asarray(Z).T,
+                np.asarray(U).T, P)
+        return np.asarray(out, dtype=float).reshape(self.n, n).T
+
+    def init(self, driver, t0, x0, z0):
+        return {"ref": [None] * self.n, "band": [0.0] * self.n, "primed": False}
+
+    def _scan(self, G, state, upto=None):
+        """(row j, crossed list, refs after rows < j) of the first crossing, or (None, [], refs)."""
+        ref, band = list(state["ref"]), state["band"]
+        dirs = self.mon.dirs
+        rows = G.shape[0] if upto is None else upto + 1
+        for j in range(rows):
+            crossed = []
+            new = list(ref)
+            for i in range(self.n):
+                g = G[j, i]
+                if ref[i] is None:
+                    if abs(g) > band[i]:
+                        new[i] = 1.0 if g > 0 else -1.0
+                    continue
+                s_ = 1.0 if g > 0 else (-1.0 if g < 0 else 0.0)
+                if s_ != ref[i] and j > 0:
+                    rising = ref[i] < 0
+                    if dirs[i] == 0 or (dirs[i] > 0) == rising:
+                        crossed.append(i)
+                if s_ != 0:
+                    new[i] = s_
+            if crossed:
+                return j, crossed, ref
+            ref = new
+        return None, [], ref
+
+    def check(self, seg, state):
+        if self.n == 0:
+            return None
+        G = self._G(seg.t, seg.X, seg.Z, seg.U)
+        j, crossed, _ = self._scan(G, state)
+        if j is None:
+            return None
+        ga, gb = G[j - 1], G[j]
+        ta, tb = float(seg.t[j - 1]), float(seg.t[j])
+        lin = {i: ta + (tb - ta) * ga[i] / (ga[i] - gb[i]) if ga[i] != gb[i] else tb
+               for i in crossed}
+        lead = min(crossed, key=lambda i: (lin[i], i))
+
+        def g_lead(t, x, z, u):
+            return float(self._G(np.array([t]), x.reshape(1, -1), z.reshape(1, -1),
+                                 np.asarray(u, float).reshape(1, -1))[0, lead])
+
+        tol = self.rb_tol * max(1.0, abs(tb))
+        te, xe, ze = seg.driver.locate(seg, j - 1, g_lead, tol=tol)
+        return Firing(te, xe, ze, info=(j - 1, crossed, lead, ga))
+
+    rb_tol = 1e-12
+
+    def accept(self, seg, upto, state):
+        if self.n == 0:
+            return state
+        G = self._G(seg.t[: upto + 1], seg.X[: upto + 1], seg.Z[: upto + 1], seg.U[: upto + 1])
+        _, _, ref = self._scan(G, state)
+        state = dict(state)
+        state["ref"] = ref
+        return state
+
+    def act(self, firing, driver, state):
+        i0, crossed, lead, ga = firing.info
+        te = float(firing.t)
+        sig = driver.system.sig
+        ue = sig.value(te)
+        ge = self._G(np.array([te]), firing.x.reshape(1, -1), firing.z.reshape(1, -1),
+                     np.asarray(ue, float).reshape(1, -1))[0]
+        fired = [lead]
+        for i in crossed:
+            if i != lead and (np.sign(ge[i]) != np.sign(ga[i]) or
+                              abs(ge[i]) <= 1e3 * abs(ge[lead]) + 1e-300):
+                fired.append(i)
+        fired.sort()
+        state = dict(state)
+        ref, band = list(state["ref"]), list(state["band"])
+        # refs of the others: their values at the event
+        for i in range(self.n):
+            if ge[i] != 0 and ref[i] is not None:
+                ref[i] = 1.0 if ge[i] > 0 else -1.0
+        x = np.asarray(firing.x, float).copy()
+        z = np.asarray(firing.z, float).copy()
+        names = self.mon.names
+        terminal = False
+        for i in fired:
+            self.log.append((te, names[i]))
+            ref[i] = None
+            band[i] = 10.0 * abs(float(ge[i])) + 1e-300
+            if i < self.mon.n_ev:
+                ev = self.mon.events[i]
+                terminal = terminal or ev.terminal
+                if ev.reset and not ev.terminal:
+                    vals = np.asarray(self.resets[i](te, x, z, ue, self.pv), float).ravel()
+                    targets = dict(zip(ev.reset, vals, strict=True))
+                    xr, zr, info = _restore(self.r_work, te, x[: self.n_x], z, ue, self.pv,
+                                            targets)
+                    x[: self.n_x], z = xr, zr
+                    self.stats["max_reset_deviation"] = max(
+                        self.stats.get("max_reset_deviation", 0.0), info["kept"])
+                    self.stats["reset_metric"] = info["metric"]
+            else:
+                k = i - self.mon.n_ev
+                x[self.n_x + k] = _flip(self.found[k].kind, x[self.n_x + k])
+        state["ref"], state["band"] = ref, band
+        times = [e[0] for e in self.log]
+        prev = times[: -len(fired)]
+        if prev and te > prev[-1]:
+            self.last_gap = te - prev[-1]
+            self.check_dt = min(self.dt_check, self.last_gap / 10.0)
+        label = "+".join(names[i] for i in fired)
+        msg = _zeno_message(self.log, self.zeno_count, self.zeno_window, self.max_events,
+                            self.span)
+        if msg is not None:
+            self.zeno = msg
+            return Action(record=True, terminal=True, label=label), state
+        if terminal:
+            return Action(record=True, terminal=True, label=label), state
+        return Action(x=x, z=z, record=True, label=label), state
+
+
+def _zeno_message(events, zeno_count, zeno_window, max_events, span) -> str | None:
+    """The Zeno rules of the module docstring on the event log; a message, or None."""
+    geometric = False
+    if len(events) > zeno_count:
+        gz = np.diff([e_[0] for e_ in events[-zeno_count - 1:]])
+        if np.all(gz > 0) and np.all(gz[1:] <= 0.99 * gz[:-1]):
+            rho_ = gz[-1] / gz[-2]
+            geometric = gz[-1] * rho_ / (1 - rho_) < 1e-2 * span
+    if not (len(events) > max_events or geometric or (
+            len(events) >= zeno_count and events[-1][0] - events[-zeno_count][0] < zeno_window)):
+        return None
+    times = np.array([e[0] for e in events[-zeno_count:]])
+    gaps = np.diff(times)
+    est = ""
+    if gaps.size >= 3 and gaps[-2] > 0:
+        rho = gaps[-1] / gaps[-2]
+        if 0 < rho < 1:
+            est = (f"; the event times accumulate geometrically (ratio {rho:.3g}) at "
+                   f"t = {times[-1] + gaps[-1] * rho / (1 - rho):.10g}")
+    return (
+        f"simulate: Zeno behaviour: {len(events)} events, the last {len(times)} of them "
+        f"({', '.join(sorted({e[1] for e in events[-zeno_count:]}))}) within "
+        f"{times[-1] - times[0]:.3g} (zeno_window = {zeno_window:.3g}){est}. Stop the "
+        "simulation there with a terminal event (e.g. when the speed is small), or "
+        "change the model. The trajectory up to the last event is attached as .trajectory."
+    )
+
+
+def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol, options,
+                     dt_check, zeno_count, zeno_window, max_events, progress, wall0,
+                     stabilization) -> Trajectory:
+    """The continuous-run remedies (none, Baumgarte, GGL) on the event-driven driver."""
+    from .driver import Driver
+    from .system import system_for
+
+    t0 = float(tg[0])
+    span = float(tg[-1] - tg[0])
+    rb = with_branch_states(rf, len(found))
+    x0 = np.array([row0.get(n, 0.0) for n in r_work.x_names])
+    z0 = np.array([row0.get(n, 0.0) for n in r_work.z_names])
+    u0 = sig.value(t0)
+    b0 = branch_values(found, r_work, t0, x0, z0, u0, pv_user)
+    opts = dict(options)
+    if r_work.info.get("index", 1) >= 2:
+        opts.setdefault("suppress_algebraic", True)
+    system = system_for(rb, sig, rtol, atol, opts)
+    em = EventMonitor(r_work, rb, found, mon, r_work.nx, pv_user, dt_check, span, zeno_count,
+                      zeno_window, max_events)
+    em.rb_tol = rtol
+    d = Driver(system, tg, np.concatenate([x0, b0]), z0, pv_user, [em], progress=progress)
+    res = d.run()
+    traj = res.trajectory({"events": len(em.log), **em.stats,
+                           "wall_time": time.perf_counter() - wall0,
+                           "stabilization": stabilization})
+    traj.events = list(em.log)
+    last = em.log[-1] if em.log else None
+    if last is not None and traj.t.size >= 2 and traj.t[-1] == traj.t[-2] == last[0] and (
+            em.zeno or any(n_ == e.name and e.terminal for n_ in last[1].split("+")
+                           for e in mon.events)):
+        traj = traj.slice(traj.t.size - 1)  # a terminal event: the pre-event row ends it
+        traj.events = list(em.log)
+        terminal = [e.name for e in mon.events if e.terminal and e.name in last[1].split("+")]
+        if terminal and not em.zeno:
+            traj.stats["terminated_by"] = terminal[0]
+    if em.zeno:
+        raise SimulationError(em.zeno, t=float(em.log[-1][0]), trajectory=traj)
+    return traj
+
+
 def _row(traj: Trajectory, j: int) -> dict[str, float]:
     return {n: float(a[j]) for n, a in traj.values.items()}
 
@@ -180,7 +457,8 @@ def _init_of(r, t, row: Mapping, pv, u):
 def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rtol=1e-8,
                     atol=1e-8, poles=(-1.0, -1.0), event_spacing: float | None = None,
                     zeno_count: int = 10, zeno_window: float | None = None,
-                    max_events: int = 10000, **options) -> Trajectory:
+                    max_events: int = 10000, progress: bool = False, use_driver: bool = True,
+                    **options) -> Trajectory:
     """Simulate ``r`` with its model's events and its switches (see the module docstring).
 
     Called by :func:`daekit.simulate` (same arguments); the extra keywords ``event_spacing``,
@@ -195,7 +473,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     >>> traj = dk.simulate(r, np.linspace(0, 1, 11), init, rtol=1e-10, atol=1e-10)
     >>> [(round(te, 8), n) for te, n in traj.events]     # sqrt(2 / 9.81) = 0.45152364
     [(0.45152364, 'floor')]
-    >>> bool(abs(traj["h"][-1] - (1 - 9.81 * (1 - 3 * 0.45152364) ** 2 / 2)) < 1e-7)
+    >>> bool(abs(traj["h"][-1] - (1 - 9.81 * (1 - 2 * 0.45152364) ** 2 / 2)) < 1e-7)
     True
     """
     from ..reduction import baumgarte, reselect, selection_condition
@@ -247,6 +525,12 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     if zeno_window is None:
         zeno_window = 1e-4 * max(span, 1e-300)
 
+    # the continuous-run remedies on the driver; an index-2 (GGL) system on segments of
+    # simulate's own GGL path (its restart needs a moderate first step from a consistent point)
+    if seg_stab is None and use_driver and r_work.info.get("index", 1) < 2:
+        return _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
+                                options, dt_check, zeno_count, zeno_window, max_events,
+                                progress, wall0, stabilization)
     r_cur = rf
     if dummy:
         r_cur = r_work
@@ -376,7 +660,8 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                for i in crossed}
         lead = min(crossed, key=lambda i: (lin[i], i))
 
-        def value_at(tt: float):
+        def value_at(tt: float, branches=branches, r_loc=r_loc, init_a=init_a, ta=ta, tb=tb,
+                     lead=lead):
             stats["event_locations"] += 1
             try:
                 tr = run(r_loc, np.array([ta, tt]), init_a, branches,

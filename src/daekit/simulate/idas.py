@@ -529,7 +529,7 @@ def simulate(
             _check_grid(t)
             return simulate_events(r, t, init, inputs=inputs, params=params,
                                    stabilization=stabilization, rtol=rtol, atol=atol,
-                                   poles=poles, **options)
+                                   poles=poles, progress=progress, **options)
     options = {k: v for k, v in options.items() if k not in event_keys}
     if isinstance(stabilization, str) and stabilization.lower() == "none":
         stabilization = None

@@ -491,6 +491,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     else:
         r_work, seg_stab = r, None
     dummy = stabilization == "dummy_derivatives"
+    index2 = r_work.info.get("index", 1) >= 2
     rf, found = (r_work, []) if dummy else freeze_switches(r_work)
     mon = _Monitors(r_work, rf, found, r_work.n_p)
     n_mon = len(mon.names)
@@ -577,7 +578,14 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
         pts = pts[np.concatenate([[True], np.diff(pts) > 1e-12 * max(1.0, abs(t_end))])]
         # no point just after the start (a restart over a tiny first interval is fragile)
-        close = (pts > t_cur) & (pts < t_cur + 1e-3 * dt_seg) & (pts < t_end)
+        # (an index-2 GGL run starts with a step of 1e-4 of the smallest grid interval)
+        near = (1e-1 if index2 else 1e-3) * dt_seg
+        close = (pts > t_cur) & (pts < t_cur + near) & (pts < t_end)
+        if index2:  # no check point just before an output point either
+            is_user = np.isin(pts, tg)
+            dprev = np.diff(pts, prepend=-np.inf)
+            dnext = np.diff(pts, append=np.inf)
+            close |= ~is_user & ((dprev < near) | (dnext < near)) & (pts > t_cur) & (pts < t_end)
         pts = pts[~close]
         if pts.size < 2:
             break

@@ -672,8 +672,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                      lead=lead):
             stats["event_locations"] += 1
             try:
-                tr = run(r_loc, np.array([ta, tt]), init_a, branches,
-                         "dummy_derivatives" if dummy else None)
+                tr = run(r_loc, np.array([ta, tt]), init_a, branches, None)
             except SimulationError as exc:
                 raise SimulationError(
                     f"simulate: locating the event {mon.names[lead]!r} in [{ta:.10g}, {tb:.10g}] "

@@ -146,6 +146,10 @@ def _cmd_simulate(args) -> int:
     maxinv = traj.max_invariant()
     print(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
           f"{traj.stats.get('steps', '?')} steps, {traj.stats.get('wall_time', float('nan')):.3f} s")
+    if traj.events:
+        shown = ", ".join(f"{n} at t = {te:.10g}" for te, n in traj.events[:10])
+        more = f", ... ({len(traj.events)} in all)" if len(traj.events) > 10 else ""
+        print(f"events: {shown}{more}")
     for k, v in final.items():
         print(f"  {k:>16} = {v: .10g}")
     if maxinv:
@@ -153,7 +157,8 @@ def _cmd_simulate(args) -> int:
     if args.json:
         data = {"t": traj.t.tolist(), "values": {k: traj[k].tolist() for k in traj.names},
                 "invariant_names": traj.invariant_names, "invariants": traj.invariants.tolist(),
-                "stats": {k: v for k, v in traj.stats.items() if isinstance(v, (int, float, str))}}
+                "stats": {k: v for k, v in traj.stats.items() if isinstance(v, (int, float, str))},
+                "events": [[te, n] for te, n in traj.events]}
         Path(args.json).write_text(json.dumps(data))
         print(f"wrote {args.json}")
     if args.plot:

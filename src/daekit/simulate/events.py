@@ -355,6 +355,23 @@ class EventMonitor(Monitor):
             else:
                 k = i - self.mon.n_ev
                 x[self.n_x + k] = _flip(self.found[k].kind, x[self.n_x + k])
+        # a function that the jump itself carried across zero (e.g. an energy threshold
+        # passed at an impact) fires at the event too, in declaration order
+        if any(i < self.mon.n_ev and self.mon.events[i].reset for i in fired) and not terminal:
+            gp = self._G(np.array([te]), x.reshape(1, -1), z.reshape(1, -1),
+                         np.asarray(ue, float).reshape(1, -1))[0]
+            dirs = self.mon.dirs
+            for i in range(self.mon.n_ev):
+                if i in fired or ge[i] == 0 or np.sign(gp[i]) == np.sign(ge[i]):
+                    continue
+                rising = ge[i] < 0
+                if dirs[i] == 0 or (dirs[i] > 0) == rising:
+                    self.log.append((te, names[i]))
+                    fired.append(i)
+                    ref[i], band[i] = None, 10.0 * abs(float(gp[i])) + 1e-300
+                    terminal = terminal or self.mon.events[i].terminal
+                else:
+                    ref[i] = 1.0 if gp[i] > 0 else -1.0
         state["ref"], state["band"] = ref, band
         times = [e[0] for e in self.log]
         prev = times[: -len(fired)]
@@ -368,7 +385,7 @@ class EventMonitor(Monitor):
             self.zeno = msg
             return Action(record=True, terminal=True, label=label), state
         if terminal:
-            return Action(record=True, terminal=True, label=label), state
+            return Action(x=x, z=z, record=True, terminal=True, label=label), state
         return Action(x=x, z=z, record=True, label=label), state
 
 
@@ -428,14 +445,15 @@ def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
                            "stabilization": stabilization})
     traj.events = list(em.log)
     last = em.log[-1] if em.log else None
+    at_last = [n_ for te_, n_ in em.log if last is not None and te_ == last[0]]
+    terminal = [e.name for e in mon.events if e.terminal and e.name in at_last]
     if last is not None and traj.t.size >= 2 and traj.t[-1] == traj.t[-2] == last[0] and (
-            em.zeno or any(n_ == e.name and e.terminal for n_ in last[1].split("+")
-                           for e in mon.events)):
-        traj = traj.slice(traj.t.size - 1)  # a terminal event: the pre-event row ends it
-        traj.events = list(em.log)
-        terminal = [e.name for e in mon.events if e.terminal and e.name in last[1].split("+")]
-        if terminal and not em.zeno:
-            traj.stats["terminated_by"] = terminal[0]
+            em.zeno or terminal):
+        if all(v[-1] == v[-2] for v in traj.values.values()):
+            traj = traj.slice(traj.t.size - 1)  # no jump: the event row ends it
+            traj.events = list(em.log)
+    if terminal and not em.zeno:
+        traj.stats["terminated_by"] = terminal[0]
     if em.zeno:
         raise SimulationError(em.zeno, t=float(em.log[-1][0]), trajectory=traj)
     return traj

@@ -33,6 +33,7 @@ from .classic import (
     transistor_amplifier,
 )
 from .failures import f1, f2, f3, gear_petzold, iwata_nonlinear, oki_linear
+from .impacts import CRANE_END_STOP_INIT, crane_end_stop, pendulum_wall
 from .lecture import (
     DELTA_GAMMA,
     delta_robot,
@@ -52,7 +53,6 @@ from .mechanisms import (
     lagrangian_pendulum3d,
     lagrangian_planar_chain,
 )
-from .impacts import CRANE_END_STOP_INIT, crane_end_stop, pendulum_wall
 from .pendula import chained_pendula, pendulum_planar, planar_chain
 
 __all__ = [

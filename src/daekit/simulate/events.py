@@ -77,7 +77,8 @@ from .driver import Action, Firing, Monitor
 from .reset import restore
 from .trajectory import Trajectory
 
-__all__ = ["simulate_events", "has_events", "EventMonitor", "with_branch_states"]
+__all__ = ["simulate_events", "simulate_rattle_events", "has_events", "EventMonitor",
+           "with_branch_states"]
 
 _SUM_STATS = ("steps", "residual_evaluations", "jacobian_evaluations", "error_test_failures",
               "newton_failures", "integrator_wall_time", "intervals")
@@ -844,4 +845,229 @@ def _assemble(ts, rows, invs, inv_names, stats, events) -> Trajectory:
         if invs else np.zeros((0, ninv))
     traj = Trajectory(np.array(ts, dtype=float), vals, inv.reshape(len(ts), ninv),
                       inv_names, dict(stats), events=list(events))
+    return traj
+
+
+def simulate_rattle_events(r, t, init, params=None, inputs=None, dt: float | None = None,
+                           newton_iter: int = 8, zeno_count: int = 10,
+                           zeno_window: float | None = None, max_events: int = 10000,
+                           progress: bool = False, **unknown) -> Trajectory:
+    """RATTLE (:mod:`daekit.simulate.rattle`) with the model's events.
+
+    RATTLE takes fixed steps (``dt``, as :func:`~daekit.simulate.rattle.simulate_rattle`); the
+    event functions are evaluated after every step. In the step where one changes sign the
+    event is located on that step by Illinois on the fraction ``theta`` of the step, each value
+    from a partial RATTLE step ``theta h`` from the step's start (a second-order interpolant
+    of the step that keeps the constraints exactly), to ``1e-12`` of the step. Resets go
+    through :func:`daekit.simulate.reset.restore` on ``r`` (mass-weighted for a Lagrangian
+    system), the momenta follow from the new velocities, and the rest of the step
+    (``(1 - theta) h``) is taken from the post-event point, so the later steps stay on the
+    grid. At most one event per step: a second crossing inside the rest of the same step is
+    not seen. ``r`` is a Lagrangian index-1 system (``LagrangianSystem.index1()``) whose
+    model declares the events; they may use coordinates, velocities, parameters and ``t``.
+
+    >>> import casadi as ca, numpy as np, daekit as dk
+    >>> q = ca.SX.sym("q", 2); v = ca.SX.sym("v", 2)
+    >>> ls = dk.lagrangian(q, v, 0.5 * ca.dot(v, v), V=9.81 * q[1],
+    ...                    constraints={"rod": ca.dot(q, q) - 1})
+    >>> mq = ls.model(); qs = mq.variables["q"].sym
+    >>> _ = mq.event(qs[0], name="wall", direction=-1, reset={"der(q)": -mq.der(qs)})
+    >>> r = ls.index1()
+    >>> tr = dk.simulate(r, np.linspace(0, 1, 101), {"q": [1, 0], "der(q)": [0, 0]},
+    ...                  method="rattle", dt=1e-3)
+    >>> round(tr.events[0][0], 5)       # exact: 0.5919604869
+    0.59196
+    """
+    from .inputs import resolve_params
+    from .rattle import rattle_stepper, simulate_rattle
+
+    if unknown:
+        from ..errors import ModelError
+
+        raise ModelError(f"simulate(method='rattle') with events: unknown option(s) "
+                         f"{sorted(unknown)}")
+    wall0 = time.perf_counter()
+    tg = np.asarray(t, dtype=float).ravel()
+    t0, tf = float(tg[0]), float(tg[-1])
+    span = tf - t0
+    if zeno_window is None:
+        zeno_window = 1e-4 * span
+    first = simulate_rattle(r, tg[:2], init, params=params, inputs=inputs, dt=dt)
+    sysm, step, helpers = rattle_stepper(r, (t0, tf), params, inputs, newton_iter)
+    n, m_ = sysm.n, sysm.m
+    q0 = np.array([first.values[nm][0] for nm in sysm.q_names])
+    v0 = np.array([first.values[nm][0] for nm in sysm.v_names])
+    p0 = np.asarray(helpers["p_of_v"](q0, v0), float).ravel()
+    lam0 = np.asarray(helpers["out"](t0, q0, p0)[4], float).ravel()
+    X = np.concatenate([[t0], q0, p0, lam0, [0.0, 0.0]])
+    mon = _Monitors(r, r, [], r.n_p)
+    pv = resolve_params(r, params)
+    pvals = dict(zip(r.p_names, pv, strict=True))
+    allowed = set(sysm.q_names) | set(sysm.v_names) | set(pvals) | {"t"}
+    bad = [nm for nm in mon.used if nm not in allowed]
+    if bad:
+        from ..errors import ModelError
+
+        raise ModelError(
+            f"simulate(method='rattle'): the events use {bad}; with RATTLE an event may use "
+            "the coordinates, velocities, parameters and t only (use method='idas')"
+        )
+
+    def state(Xk):
+        q = Xk[1:1 + n]
+        v = np.asarray(helpers["out"](Xk[0], q, Xk[1 + n:1 + 2 * n])[0], float).ravel()
+        return q, v
+
+    def gvals(Xk) -> np.ndarray:
+        if not mon.n_ev:
+            return np.zeros(0)
+        q, v = state(Xk)
+        vals = {**{nm: np.atleast_1d(val) for nm, val in zip(sysm.q_names, q, strict=True)},
+                **{nm: np.atleast_1d(val) for nm, val in zip(sysm.v_names, v, strict=True)},
+                **{nm: np.atleast_1d(val) for nm, val in pvals.items()}}
+        vec = mon._vec(vals, np.atleast_1d(Xk[0]))
+        return np.asarray(mon.fev(vec.T), float).ravel()
+
+    spacing = np.diff(tg)
+    if dt is None:
+        from .rattle import DEFAULT_DT
+
+        dt = min(float(np.min(spacing)), DEFAULT_DT)
+    nsteps = np.maximum(1, np.ceil(spacing / dt - 1e-8)).astype(int)
+    rows: list[np.ndarray] = [X.copy()]
+    events: list[tuple[float, str]] = []
+    nev = mon.n_ev
+    ref = [None] * nev
+    band = [0.0] * nev
+    g_cur = gvals(X)
+    for i in range(nev):
+        if g_cur[i] != 0:
+            ref[i] = 1.0 if g_cur[i] > 0 else -1.0
+    total_steps = 0
+    stop = False
+    zeno_msg = None
+
+    def do_step(Xa, h):
+        return np.asarray(step(Xa, h), float).ravel()
+
+    for k in range(tg.size - 1):
+        h = spacing[k] / nsteps[k]
+        for _ in range(int(nsteps[k])):
+            X1 = do_step(X, h)
+            total_steps += 1
+            g1 = gvals(X1)
+            crossed = []
+            for i in range(nev):
+                if ref[i] is None:
+                    if abs(g1[i]) > band[i]:
+                        ref[i] = 1.0 if g1[i] > 0 else -1.0
+                    continue
+                s_ = np.sign(g1[i])
+                if s_ != ref[i]:
+                    rising = ref[i] < 0
+                    if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
+                        crossed.append(i)
+                    elif s_ != 0:
+                        ref[i] = s_
+            if crossed:
+                g0 = gvals(X)
+                lin = {i: g0[i] / (g0[i] - g1[i]) if g0[i] != g1[i] else 1.0 for i in crossed}
+                lead = min(crossed, key=lambda i: (lin[i], i))
+                lo, hi, glo, ghi = 0.0, 1.0, float(g0[lead]), float(g1[lead])
+                Xe, side = X1, 0
+                for _it in range(60):
+                    if hi - lo <= 1e-12:
+                        break
+                    th = hi - ghi * (hi - lo) / (ghi - glo) if ghi != glo else 0.5 * (lo + hi)
+                    if not (lo < th < hi):
+                        th = 0.5 * (lo + hi)
+                    Xm = do_step(X, th * h)
+                    gm = float(gvals(Xm)[lead])
+                    if gm != 0 and (gm > 0) == (glo > 0):
+                        lo, glo = th, gm
+                        if side == -1:
+                            ghi *= 0.5
+                        side = -1
+                    else:
+                        hi, ghi, Xe = th, gm, Xm
+                        if side == 1:
+                            glo *= 0.5
+                        side = 1
+                if Xe is X1 and hi < 1.0:
+                    Xe = do_step(X, hi * h)
+                theta = hi
+                te = float(Xe[0])
+                ge = gvals(Xe)
+                fired = sorted({lead} | {i for i in crossed if np.sign(ge[i]) != np.sign(g0[i])})
+                rows.append(Xe.copy())
+                q, v = state(Xe)
+                Xp = Xe.copy()
+                terminal = False
+                for i in fired:
+                    events.append((te, mon.names[i]))
+                    ref[i] = None
+                    band[i] = 10.0 * abs(float(ge[i])) + 1e-300
+                    ev = mon.events[i]
+                    terminal = terminal or ev.terminal
+                    if ev.reset and not ev.terminal:
+                        ue = np.asarray(helpers["u"](te), float).ravel() if r.nu else np.zeros(0)
+                        out = helpers["out"](te, Xp[1:1 + n], Xp[1 + n:1 + 2 * n])
+                        acc = np.asarray(out[5], float).ravel()
+                        lam = np.asarray(out[4], float).ravel()
+                        x_r = np.concatenate([q, v])
+                        z_r = np.concatenate([acc, lam])
+                        row = dict(zip(r.x_names, x_r, strict=True)) | dict(
+                            zip(r.z_names, z_r, strict=True)) | pvals
+                        targets = mon.reset_targets(i, row, te)
+                        xr, _, _ = restore(r, te, x_r, z_r, ue, pv, targets)
+                        q, v = xr[:n], xr[n:2 * n]
+                        Xp[1:1 + n] = q
+                        Xp[1 + n:1 + 2 * n] = np.asarray(helpers["p_of_v"](q, v), float).ravel()
+                for i in range(nev):
+                    if i not in fired and ge[i] != 0 and ref[i] is not None:
+                        ref[i] = 1.0 if ge[i] > 0 else -1.0
+                zeno_msg = _zeno_message(events, zeno_count, zeno_window, max_events, span)
+                if terminal or zeno_msg is not None:
+                    stop = True
+                    break
+                rows.append(Xp.copy())
+                X1 = do_step(Xp, (1.0 - theta) * h) if theta < 1.0 else Xp
+                X1[0] = X[0] + h  # exactly on the step grid
+                g1 = gvals(X1)
+                for i in range(nev):
+                    if ref[i] is None and abs(g1[i]) > band[i]:
+                        ref[i] = 1.0 if g1[i] > 0 else -1.0
+            else:
+                for i in range(nev):
+                    if ref[i] is not None and g1[i] != 0:
+                        ref[i] = 1.0 if g1[i] > 0 else -1.0
+            X = X1
+        if stop:
+            break
+        X[0] = tg[k + 1]
+        rows.append(X.copy())
+    R = np.array(rows)
+    tt = R[:, 0]
+    N = tt.size
+    outm = helpers["out"].map(N)
+    V, E, c, cd, lam, acc = (np.asarray(a) for a in outm(tt.reshape(1, -1), R[:, 1:1 + n].T,
+                                                          R[:, 1 + n:1 + 2 * n].T))
+    values: dict[str, np.ndarray] = {}
+    for i, nm in enumerate(sysm.q_names):
+        values[nm] = R[:, 1 + i].copy()
+    for i, nm in enumerate(sysm.v_names):
+        values[nm] = V[i].copy()
+    for i, nm in enumerate(sysm.multiplier_names):
+        values[nm] = lam[i].copy()
+    for nm, expr_name in zip(sysm.q_names, r.z_names[:n], strict=False):
+        values.setdefault(expr_name, acc[sysm.q_names.index(nm)].copy())
+    inv = np.vstack([c, cd]).T if m_ else np.zeros((N, 0))
+    inv_names = list(sysm.constraint_names) + [f"d/dt {s_}" for s_ in sysm.constraint_names]
+    stats = {"method": "rattle", "steps": total_steps, "dt": float(dt), "events": len(events),
+             "wall_time": time.perf_counter() - wall0, "energy": np.asarray(E).ravel()}
+    if events and any(e.terminal and e.name == events[-1][1] for e in mon.events):
+        stats["terminated_by"] = events[-1][1]
+    traj = Trajectory(tt, values, inv, inv_names, stats, events=events)
+    if zeno_msg is not None:
+        raise SimulationError(zeno_msg, t=float(events[-1][0]), trajectory=traj)
     return traj

@@ -508,6 +508,11 @@ def simulate(
                 f"simulate: method='rattle' keeps the constraints by construction and takes no "
                 f"stabilization (got {stabilization!r}); drop stabilization= or use method='idas'"
             )
+        if events and getattr(getattr(r, "model", None), "events", None):
+            from .events import simulate_rattle_events
+
+            return simulate_rattle_events(r, t, init, inputs=inputs, params=params,
+                                          progress=progress, **options)
         return simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,

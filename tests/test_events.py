@@ -202,3 +202,32 @@ def test_event_validation_names_the_culprit():
     m2.event(m2.variables["x"].sym, name="acc", reset={"der(x,2)": 0.0})
     with pytest.raises(ModelError, match="acc"):
         dk.events.reduced_events(dk.reduce_index(m2))
+
+
+def rattle_wall(e: float):
+    q = ca.SX.sym("q", 2)
+    v = ca.SX.sym("v", 2)
+    ls = dk.lagrangian(q, v, 0.5 * ca.dot(v, v), V=9.81 * q[1],
+                       constraints={"rod": ca.dot(q, q) - 1})
+    mq = ls.model()
+    qs = mq.variables["q"].sym
+    mq.event(qs[0], name="wall", direction=-1, reset={"der(q)": -e * mq.der(qs)})
+    return ls.index1()
+
+
+@pytest.mark.parametrize("e", [1.0, 0.8])
+def test_rattle_impact_times_second_order(e):
+    ref = pendulum_wall_impacts(5, e)
+    errs = []
+    for dt in (1e-3, 2.5e-4):
+        tr = dk.simulate(rattle_wall(e), np.linspace(0, ref[-1] + 0.1, 41),
+                         {"q": [1, 0], "der(q)": [0, 0]}, method="rattle", dt=dt)
+        te = np.array([t for t, n in tr.events])
+        assert te.size == 5
+        errs.append(np.max(np.abs(te - ref)))
+        assert np.max(np.abs(tr.invariants)) < 1e-10  # rod and velocity constraint, resets too
+        for t in te:
+            pre, post = np.nonzero(tr.t == t)[0]
+            assert tr["der(q)[0]"][pre] < 0 < tr["der(q)[0]"][post]
+    assert errs[1] < 1e-6
+    assert 10 < errs[0] / errs[1] < 24  # dt / 4: the error of a second-order method / 16

@@ -950,97 +950,146 @@ def simulate_rattle_events(r, t, init, params=None, inputs=None, dt: float | Non
     def do_step(Xa, h):
         return np.asarray(step(Xa, h), float).ravel()
 
+    chunks: dict[int, ca.Function] = {}
+
+    def run_chunk(Xa, h, K):
+        """K steps of size h from Xa: the K states after each step, (K, len(X))."""
+        if K not in chunks:
+            chunks[K] = step.mapaccum(K)
+        return np.asarray(chunks[K](Xa, ca.DM.ones(1, K) * h), float).T
+
+    gmap: dict[int, ca.Function] = {}
+    outv = helpers["out"]
+
+    def gvals_rows(Xr) -> np.ndarray:
+        """Event functions on the rows of Xr, (rows, events)."""
+        N = Xr.shape[0]
+        if not nev:
+            return np.zeros((N, 0))
+        if N not in gmap:
+            gmap[N] = outv.map(N)
+        Vr = np.asarray(gmap[N](Xr[:, 0].reshape(1, -1), Xr[:, 1:1 + n].T,
+                                Xr[:, 1 + n:1 + 2 * n].T)[0], float).reshape(n, N)
+        cols = []
+        for nm in mon.used:
+            if nm == "t":
+                cols.append(Xr[:, 0])
+            elif nm in sysm.q_names:
+                cols.append(Xr[:, 1 + sysm.q_names.index(nm)])
+            elif nm in sysm.v_names:
+                cols.append(Vr[sysm.v_names.index(nm)])
+            else:
+                cols.append(np.full(N, pvals[nm]))
+        vec = np.column_stack(cols) if cols else np.zeros((N, 0))
+        return np.asarray(mon.fev.map(N)(vec.T), float).reshape(nev, N).T
+
     for k in range(tg.size - 1):
         h = spacing[k] / nsteps[k]
-        for _ in range(int(nsteps[k])):
-            X1 = do_step(X, h)
-            total_steps += 1
-            g1 = gvals(X1)
-            crossed = []
-            for i in range(nev):
-                if ref[i] is None:
-                    if abs(g1[i]) > band[i]:
-                        ref[i] = 1.0 if g1[i] > 0 else -1.0
-                    continue
-                s_ = np.sign(g1[i])
-                if s_ != ref[i]:
-                    rising = ref[i] < 0
-                    if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
-                        crossed.append(i)
-                    elif s_ != 0:
-                        ref[i] = s_
-            if crossed:
-                g0 = gvals(X)
-                lin = {i: g0[i] / (g0[i] - g1[i]) if g0[i] != g1[i] else 1.0 for i in crossed}
-                lead = min(crossed, key=lambda i: (lin[i], i))
-                lo, hi, glo, ghi = 0.0, 1.0, float(g0[lead]), float(g1[lead])
-                Xe, side = X1, 0
-                for _it in range(60):
-                    if hi - lo <= 1e-12:
-                        break
-                    th = hi - ghi * (hi - lo) / (ghi - glo) if ghi != glo else 0.5 * (lo + hi)
-                    if not (lo < th < hi):
-                        th = 0.5 * (lo + hi)
-                    Xm = do_step(X, th * h)
-                    gm = float(gvals(Xm)[lead])
-                    if gm != 0 and (gm > 0) == (glo > 0):
-                        lo, glo = th, gm
-                        if side == -1:
-                            ghi *= 0.5
-                        side = -1
-                    else:
-                        hi, ghi, Xe = th, gm, Xm
-                        if side == 1:
-                            glo *= 0.5
-                        side = 1
-                if Xe is X1 and hi < 1.0:
-                    Xe = do_step(X, hi * h)
-                theta = hi
-                te = float(Xe[0])
-                ge = gvals(Xe)
-                fired = sorted({lead} | {i for i in crossed if np.sign(ge[i]) != np.sign(g0[i])})
-                rows.append(Xe.copy())
-                q, v = state(Xe)
-                Xp = Xe.copy()
-                terminal = False
-                for i in fired:
-                    events.append((te, mon.names[i]))
-                    ref[i] = None
-                    band[i] = 10.0 * abs(float(ge[i])) + 1e-300
-                    ev = mon.events[i]
-                    terminal = terminal or ev.terminal
-                    if ev.reset and not ev.terminal:
-                        ue = np.asarray(helpers["u"](te), float).ravel() if r.nu else np.zeros(0)
-                        out = helpers["out"](te, Xp[1:1 + n], Xp[1 + n:1 + 2 * n])
-                        acc = np.asarray(out[5], float).ravel()
-                        lam = np.asarray(out[4], float).ravel()
-                        x_r = np.concatenate([q, v])
-                        z_r = np.concatenate([acc, lam])
-                        row = dict(zip(r.x_names, x_r, strict=True)) | dict(
-                            zip(r.z_names, z_r, strict=True)) | pvals
-                        targets = mon.reset_targets(i, row, te)
-                        xr, _, _ = restore(r, te, x_r, z_r, ue, pv, targets)
-                        q, v = xr[:n], xr[n:2 * n]
-                        Xp[1:1 + n] = q
-                        Xp[1 + n:1 + 2 * n] = np.asarray(helpers["p_of_v"](q, v), float).ravel()
+        left = int(nsteps[k])
+        while left > 0 and not stop:
+            K = min(left, 64)
+            K = 1 << (K.bit_length() - 1)  # powers of two: few distinct chunk Functions
+            Xc = run_chunk(X, h, K)
+            total_steps += K
+            Gc = gvals_rows(Xc)
+            hit = None
+            for jrow in range(K):
+                g1 = Gc[jrow]
+                crossed = []
+                new_ref = list(ref)
                 for i in range(nev):
-                    if i not in fired and ge[i] != 0 and ref[i] is not None:
-                        ref[i] = 1.0 if ge[i] > 0 else -1.0
-                zeno_msg = _zeno_message(events, zeno_count, zeno_window, max_events, span)
-                if terminal or zeno_msg is not None:
-                    stop = True
+                    if ref[i] is None:
+                        if abs(g1[i]) > band[i]:
+                            new_ref[i] = 1.0 if g1[i] > 0 else -1.0
+                        continue
+                    s_ = np.sign(g1[i])
+                    if s_ != ref[i]:
+                        rising = ref[i] < 0
+                        if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
+                            crossed.append(i)
+                        elif s_ != 0:
+                            new_ref[i] = s_
+                if crossed:
+                    hit = (jrow, crossed)
                     break
-                rows.append(Xp.copy())
-                X1 = do_step(Xp, (1.0 - theta) * h) if theta < 1.0 else Xp
-                X1[0] = X[0] + h  # exactly on the step grid
-                g1 = gvals(X1)
-                for i in range(nev):
-                    if ref[i] is None and abs(g1[i]) > band[i]:
-                        ref[i] = 1.0 if g1[i] > 0 else -1.0
-            else:
-                for i in range(nev):
-                    if ref[i] is not None and g1[i] != 0:
-                        ref[i] = 1.0 if g1[i] > 0 else -1.0
+                ref = new_ref
+            if hit is None:
+                X = Xc[-1].copy()
+                left -= K
+                continue
+            jrow, crossed = hit
+            Xa = X if jrow == 0 else Xc[jrow - 1].copy()
+            X1 = Xc[jrow]
+            total_steps -= K - jrow - 1  # the steps after the crossing are taken again
+            left -= jrow + 1
+            g0 = gvals(Xa)
+            g1 = gvals(X1)
+            lin = {i: g0[i] / (g0[i] - g1[i]) if g0[i] != g1[i] else 1.0 for i in crossed}
+            lead = min(crossed, key=lambda i: (lin[i], i))
+            lo, hi, glo, ghi = 0.0, 1.0, float(g0[lead]), float(g1[lead])
+            Xe, side = X1, 0
+            for _it in range(60):
+                if hi - lo <= 1e-12:
+                    break
+                th = hi - ghi * (hi - lo) / (ghi - glo) if ghi != glo else 0.5 * (lo + hi)
+                if not (lo < th < hi):
+                    th = 0.5 * (lo + hi)
+                Xm = do_step(Xa, th * h)
+                gm = float(gvals(Xm)[lead])
+                if gm != 0 and (gm > 0) == (glo > 0):
+                    lo, glo = th, gm
+                    if side == -1:
+                        ghi *= 0.5
+                    side = -1
+                else:
+                    hi, ghi, Xe = th, gm, Xm
+                    if side == 1:
+                        glo *= 0.5
+                    side = 1
+            if Xe is X1 and hi < 1.0:
+                Xe = do_step(Xa, hi * h)
+            theta = hi
+            te = float(Xe[0])
+            ge = gvals(Xe)
+            fired = sorted({lead} | {i for i in crossed if np.sign(ge[i]) != np.sign(g0[i])})
+            rows.append(Xe.copy())
+            q, v = state(Xe)
+            Xp = Xe.copy()
+            terminal = False
+            for i in fired:
+                events.append((te, mon.names[i]))
+                ref[i] = None
+                band[i] = 10.0 * abs(float(ge[i])) + 1e-300
+                ev = mon.events[i]
+                terminal = terminal or ev.terminal
+                if ev.reset and not ev.terminal:
+                    ue = np.asarray(helpers["u"](te), float).ravel() if r.nu else np.zeros(0)
+                    out = helpers["out"](te, Xp[1:1 + n], Xp[1 + n:1 + 2 * n])
+                    acc = np.asarray(out[5], float).ravel()
+                    lam = np.asarray(out[4], float).ravel()
+                    x_r = np.concatenate([q, v])
+                    z_r = np.concatenate([acc, lam])
+                    row = dict(zip(r.x_names, x_r, strict=True)) | dict(
+                        zip(r.z_names, z_r, strict=True)) | pvals
+                    targets = mon.reset_targets(i, row, te)
+                    xr, _, _ = restore(r, te, x_r, z_r, ue, pv, targets)
+                    q, v = xr[:n], xr[n:2 * n]
+                    Xp[1:1 + n] = q
+                    Xp[1 + n:1 + 2 * n] = np.asarray(helpers["p_of_v"](q, v), float).ravel()
+            for i in range(nev):
+                if i not in fired and ge[i] != 0 and ref[i] is not None:
+                    ref[i] = 1.0 if ge[i] > 0 else -1.0
+            zeno_msg = _zeno_message(events, zeno_count, zeno_window, max_events, span)
+            if terminal or zeno_msg is not None:
+                stop = True
+                break
+            rows.append(Xp.copy())
+            X1 = do_step(Xp, (1.0 - theta) * h) if theta < 1.0 else Xp
+            X1[0] = Xa[0] + h  # exactly on the step grid
+            g1 = gvals(X1)
+            for i in range(nev):
+                if ref[i] is None and abs(g1[i]) > band[i]:
+                    ref[i] = 1.0 if g1[i] > 0 else -1.0
             X = X1
         if stop:
             break

@@ -594,7 +594,11 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         # after events, checks at least 10 per gap between the last two (bouncing: gaps shrink)
         dt_seg = min(dt_check, last_gap / 10.0) if last_gap else dt_check
         ncheck = max(1, int(math.ceil((t_end - t_cur) / dt_seg)))
-        pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
+        if seg_stab is not None and not event_spacing and dt_seg >= spacing:
+            # projection, dummy derivatives restart at every grid point: the output points only
+            pts = np.union1d(pts, users)
+        else:
+            pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
         pts = pts[np.concatenate([[True], np.diff(pts) > 1e-12 * max(1.0, abs(t_end))])]
         # no point just after the start (a restart over a tiny first interval is fragile)
         # (an index-2 GGL run starts with a step of 1e-4 of the smallest grid interval)

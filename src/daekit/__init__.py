@@ -9,7 +9,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 3
 """
 
-from . import events, examples, mechanics, structure
+from . import events, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
 from .errors import (
     DaekitError,
@@ -37,6 +37,17 @@ from .reduction import (
 from .simulate import InputError, Trajectory, simulate
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    # The example library (and SciPy's special functions its exact solutions need) is imported
+    # on first use, so that ``import daekit`` costs little more than CasADi, NumPy and SciPy.
+    if name == "examples":
+        import importlib
+
+        return importlib.import_module(".examples", __name__)
+    raise AttributeError(f"module 'daekit' has no attribute {name!r}")
+
 
 __all__ = [
     "OCP",

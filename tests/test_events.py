@@ -231,3 +231,51 @@ def test_rattle_impact_times_second_order(e):
             assert tr["der(q)[0]"][pre] < 0 < tr["der(q)[0]"][post]
     assert errs[1] < 1e-6
     assert 10 < errs[0] / errs[1] < 24  # dt / 4: the error of a second-order method / 16
+
+
+def test_cli_simulate_reports_events(capsys, tmp_path):
+    import json
+
+    from daekit.cli import main
+
+    out = tmp_path / "wall.json"
+    fixed = json.dumps({"x": 1.0, "y": 0.0, "der(x)": 0.0})
+    assert main(["simulate", "pendulum_wall", "--t-end", "1.0", "--points", "11", "--fixed",
+                 fixed, "--rtol", "1e-10", "--atol", "1e-10", "--quiet", "--json",
+                 str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "events: wall at t = 0.59196048" in text
+    data = json.loads(out.read_text())
+    (te, name), = data["events"]
+    assert name == "wall" and abs(te - pendulum_wall_impacts(1, 0.8)[0]) < 1e-8
+
+
+@pytest.mark.parametrize("remedy", [None, "projection"])
+def test_simultaneous_events_fire_in_declaration_order(remedy):
+    m = dk.Model("decay")
+    x = m.state("x")
+    m.equation(m.der(x) + x, name="decay")
+    m.event(2 * x - 1, name="second")  # the same crossing as 'first', declared first
+    m.event(x - 0.5, name="first", reset={"x": 1.0})
+    r = dk.reduce_index(m)
+    tr = dk.simulate(r, np.linspace(0, 1, 11), dk.initialize(r, fixed={"x": 1.0}),
+                     stabilization=remedy, rtol=1e-10, atol=1e-10)
+    assert [n for _, n in tr.events] == ["second", "first"]
+    assert abs(tr.events[0][0] - np.log(2)) < 1e-8 and tr.events[0][0] == tr.events[1][0]
+    # after the reset x = 1 again: x = exp(-(t - ln 2))
+    k = tr.t > tr.events[0][0]
+    assert np.max(np.abs(tr["x"][k] - np.exp(-(tr.t[k] - np.log(2))))) < 1e-8
+
+
+def test_event_on_an_input_and_time():
+    m = dk.Model("driven")
+    x = m.state("x")
+    u = m.control("u")
+    m.equation(m.der(x) - u, name="integrator")
+    m.event(m.t - 0.25, name="clock", reset={"x": 0.0})
+    r = dk.reduce_index(m)
+    tr = dk.simulate(r, np.linspace(0, 0.5, 6), dk.initialize(r, fixed={"x": 0.0}),
+                     inputs={"u": 2.0 + 0 * r.t}, rtol=1e-10, atol=1e-10)
+    (te, name), = tr.events
+    assert abs(te - 0.25) < 1e-9
+    assert abs(tr["x"][-1] - 2.0 * (0.5 - te)) < 1e-8

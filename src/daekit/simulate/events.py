@@ -240,6 +240,7 @@ class EventMonitor(Monitor):
         self.resets = [ca.Function(f"reset_{e.name}", [rb.t, rb.x, rb.z, rb.u, rb.p],
                                    [ca.vertcat(*e.reset.values()) if e.reset else ca.SX(0, 1)])
                        for e in monitors.events]
+        self._maps: dict[int, ca.Function] = {}
         self.log: list[tuple[float, str]] = []
         self.zeno: str | None = None
         self.last_gap = 0.0
@@ -247,7 +248,14 @@ class EventMonitor(Monitor):
 
     def _G(self, t, X, Z, U) -> np.ndarray:
         n = np.size(t)
-        F = self.g.map(n)
+        if n == 1:
+            out = self.g(float(np.ravel(t)[0]), np.ravel(X), np.ravel(Z), np.ravel(U), self.pv)
+            return np.asarray(out, dtype=float).reshape(1, self.n)
+        F = self._maps.get(n)
+        if F is None:
+            if len(self._maps) > 8:
+                self._maps.clear()
+            F = self._maps[n] = self.g.map(n)
         P = np.repeat(self.pv.reshape(-1, 1), n, axis=1)
         out = F(np.asarray(t, float).reshape(1, -1), np.asarray(X).T, np.asarray(Z).T,
                 np.asarray(U).T, P)

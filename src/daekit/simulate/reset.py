@@ -190,7 +190,7 @@ def restore(r, t: float, x, z, u, p, targets: dict[str, float], tol: float = 1e-
         # by a minimal change of the held states, so that the restart is consistent
         repaired = _repair_fixed(fun, t, x, z, u, p, free, tol)
     for _ in range(max_iter):
-        alg, inv, V, Ax, Az, Ix, Iz, Vx, Vz = (np.asarray(ca.DM(o).full(), dtype=float)
+        alg, inv, V, Ax, Az, Ix, Iz, Vx, Vz = (o.full()
                                                 for o in fun(t, x, z, u, p))
         alg, inv, V = alg.ravel(), inv.ravel(), V.ravel()
         # joint unknowns (free states, all algebraic unknowns): C d = c, min ||A d - b||
@@ -231,7 +231,7 @@ def _repair_fixed(fun, t, x, z, u, p, free, tol) -> float:
         return 0.0
     x0 = x[held].copy()
     for _ in range(10):
-        _, inv, _, _, _, Ix, Iz, _, _ = (np.asarray(ca.DM(o).full(), dtype=float)
+        _, inv, _, _, _, Ix, Iz, _, _ = (o.full()
                                          for o in fun(t, x, z, u, p))
         inv = inv.ravel()
         if not inv.size:

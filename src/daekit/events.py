@@ -41,7 +41,7 @@ from .errors import ModelError
 from .model import element_name, parse_name
 
 __all__ = ["ReducedEvent", "Switch", "reduced_events", "switches", "freeze_switches",
-           "event_symbols", "branch_values"]
+           "event_symbols", "branch_values", "SCAN_LIMIT"]
 
 
 @dataclass
@@ -192,14 +192,17 @@ def _depends(e: ca.SX, wrt: ca.SX) -> bool:
     return bool(wrt.numel()) and bool(ca.depends_on(e, wrt))
 
 
-def _replay(r, exprs: list[ca.SX], frozen: bool):
+def _replay(r, exprs: list[ca.SX], frozen: bool, limit: int | None = None):
     """Walk the instruction list of ``exprs``; return (switches, outputs, branch symbols).
 
-    With ``frozen`` every switch is replaced by its branch symbol in the rebuilt outputs."""
+    With ``frozen`` every switch is replaced by its branch symbol in the rebuilt outputs.
+    Beyond ``limit`` instructions nothing is walked and the switches are ``None``."""
     ins = [r.t, r.x, r.z, r.u, r.p]
     out_all = ca.vertcat(*[ca.vec(ca.SX(e)) for e in exprs]) if exprs else ca.SX(0, 1)
     f = ca.Function("switch_walk", ins, [out_all])
     n = f.n_instructions()
+    if limit is not None and n > limit:
+        return None, exprs, ca.SX(0, 1)
     ops = [f.instruction_id(k) for k in range(n)]
     interesting = set(_RELATIONS) | set(_KINKS)
     if not any(o in interesting for o in ops):
@@ -279,12 +282,20 @@ def _replay(r, exprs: list[ca.SX], frozen: bool):
     return found, outs, (ca.vertcat(*branch_syms) if branch_syms else ca.SX(0, 1))
 
 
-def switches(r) -> list[Switch]:
+#: instruction count above which :func:`switches` does not walk the equations unless asked
+#: (the walk is Python-level, about 2 microseconds per instruction)
+SCAN_LIMIT = 200_000
+
+
+def switches(r, limit: int | None = None) -> list[Switch] | None:
     """The discontinuities of ``r``'s equations that depend on time, states or inputs.
 
     Conditions of ``if_else`` and the kinks of ``fabs``, ``sign``, ``fmin``, ``fmax`` in
     ``ode``, ``alg`` and the invariants (the same node used twice counts once); conditions on
-    parameters only are not switches. See the module docstring.
+    parameters only are not switches. See the module docstring. With ``limit``, equations of
+    more than ``limit`` CasADi instructions are not walked and ``None`` is returned (the
+    simulator uses :data:`SCAN_LIMIT`: a larger model's switches are not found automatically;
+    call ``switches(r)`` yourself, or write the switch as a declared event).
 
     >>> import casadi as ca
     >>> from daekit.reduced import ReducedDAE
@@ -294,7 +305,7 @@ def switches(r) -> list[Switch]:
     >>> [(s.kind, str(s.expr)) for s in switches(r)]
     [('fabs', '(x-1)')]
     """
-    found, _, _ = _replay(r, [r.ode, r.alg, r.invariants], frozen=False)
+    found, _, _ = _replay(r, [r.ode, r.alg, r.invariants], frozen=False, limit=limit)
     return found
 
 

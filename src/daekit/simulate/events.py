@@ -91,14 +91,19 @@ def has_events(r) -> bool:
     >>> has_events(dk.reduce_index(dk.examples.pendulum_planar()))
     False
     """
-    from ..events import switches
+    from ..events import SCAN_LIMIT, switches
 
     if getattr(getattr(r, "model", None), "events", None):
         return True
     key = "_has_switches"
-    if key not in r.info:
-        r.info[key] = bool(switches(r))
-    return bool(r.info[key])
+    ident = (id(r.ode), id(r.alg), id(r.invariants))
+    hit = r.info.get(key)
+    if hit is None or hit[0] != ident:  # (a copy of info on another system is not trusted)
+        found = switches(r, limit=SCAN_LIMIT)
+        r.info[key] = hit = (ident, bool(found))
+        if found is None:
+            r.info["switch_scan"] = f"not scanned (more than {SCAN_LIMIT} instructions)"
+    return hit[1]
 
 
 class _Monitors:

@@ -768,34 +768,9 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                                           if i < mon.n_ev and mon.decl[i].terminal)
             break
         # Zeno
-        geometric = False
-        if len(events) > zeno_count:
-            gz = np.diff([e_[0] for e_ in events[-zeno_count - 1:]])
-            if np.all(gz > 0) and np.all(gz[1:] <= 0.99 * gz[:-1]):
-                rho_ = gz[-1] / gz[-2]
-                geometric = gz[-1] * rho_ / (1 - rho_) < 1e-2 * span
-        if len(events) > max_events or geometric or (
-            len(events) >= zeno_count
-            and events[-1][0] - events[-zeno_count][0] < zeno_window
-        ):
-            times = np.array([e[0] for e in events[-zeno_count:]])
-            gaps = np.diff(times)
-            est = ""
-            if gaps.size >= 3 and gaps[-2] > 0:
-                rho = gaps[-1] / gaps[-2]
-                if 0 < rho < 1:
-                    est = (f"; the event times accumulate geometrically (ratio {rho:.3g}) at "
-                           f"t = {times[-1] + gaps[-1] * rho / (1 - rho):.10g}")
-            raise SimulationError(
-                f"simulate: Zeno behaviour: {len(events)} events, the last {zeno_count} of them "
-                f"({', '.join(sorted({e[1] for e in events[-zeno_count:]}))}) within "
-                f"{times[-1] - times[0]:.3g} (zeno_window = {zeno_window:.3g}){est}. Stop the "
-                "simulation there with a terminal event (e.g. when the speed is small), or "
-                "change the model. The trajectory up to the last event is attached as "
-                ".trajectory.",
-                t=te,
-                trajectory=partial_traj(),
-            )
+        msg = _zeno_message(events, zeno_count, zeno_window, max_events, span)
+        if msg is not None:
+            raise SimulationError(msg, t=te, trajectory=partial_traj())
         # --- resets, consistency, switch branches
         ue = sig.value(te)
         xe = np.array([pre.get(n, 0.0) for n in r_loc.x_names])

@@ -36,7 +36,11 @@ def run_wall(e: float, remedy: str | None):
     init = dk.initialize(r, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
     ref = pendulum_wall_impacts(5, e)
     tg = np.linspace(0.0, ref[-1] + 0.1, 41)
-    return dk.simulate(r, tg, init, stabilization=stab, rtol=1e-10, atol=1e-10), ref
+    tr = dk.simulate(r, tg, init, stabilization=stab, rtol=1e-10, atol=1e-10)
+    # every output point, and two rows (before, after) per impact
+    assert set(tg.tolist()) <= set(tr.t.tolist()) and tr.t.size == tg.size + 2 * len(tr.events)
+    assert np.all(np.diff(tr.t) >= 0)
+    return tr, ref
 
 
 def check_wall(tr, ref):

@@ -612,7 +612,14 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
             pts = np.union1d(pts, users)
         else:
             pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
-        pts = pts[np.concatenate([[True], np.diff(pts) > 1e-12 * max(1.0, abs(t_end))])]
+        # a check point within rounding of an output point gives way to it
+        eps = 1e-12 * max(1.0, abs(t_end))
+        if users.size:
+            k_ = np.clip(np.searchsorted(users, pts), 1, users.size) - 1
+            d_ = np.minimum(np.abs(pts - users[k_]),
+                            np.abs(pts - users[np.minimum(k_ + 1, users.size - 1)]))
+            pts = pts[(d_ > eps) | np.isin(pts, users) | (pts == t_cur) | (pts == t_end)]
+        pts = pts[np.concatenate([[True], np.diff(pts) > eps])]
         # no point just after the start (a restart over a tiny first interval is fragile)
         # (an index-2 GGL run starts with a step of 1e-4 of the smallest grid interval)
         near = (1e-1 if index2 else 1e-3) * dt_seg

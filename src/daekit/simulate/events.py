@@ -689,7 +689,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         first_row_is_post = False
         # --- location: Illinois on the earliest crossing, re-integrating from row j-1
         # re-integrate from one check point further back (never over a tiny interval)
-        ja = j - 2 if j >= 2 else j - 1
+        ja = j - 2 if (j >= 2 and not dummy) else j - 1
         ta = float(seg.t[ja])
         row_a = _row(seg, ja)
         r_loc = r_cur
@@ -715,7 +715,13 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                      lead=lead):
             stats["event_locations"] += 1
             try:
-                tr = run(r_loc, np.array([ta, tt]), init_a, branches, None)
+                try:
+                    tr = run(r_loc, np.array([ta, tt]), init_a, branches, None)
+                except SimulationError:
+                    if not dummy:
+                        raise
+                    # the selection made at ta degraded before tt: let it be re-selected
+                    tr = run(r_loc, np.array([ta, tt]), init_a, branches, "dummy_derivatives")
             except SimulationError as exc:
                 raise SimulationError(
                     f"simulate: locating the event {mon.names[lead]!r} in [{ta:.10g}, {tb:.10g}] "

@@ -285,3 +285,20 @@ def test_event_on_an_input_and_time():
     (te, name), = tr.events
     assert abs(te - 0.25) < 1e-9
     assert abs(tr["x"][-1] - 2.0 * (0.5 - te)) < 1e-8
+
+
+@pytest.mark.parametrize("remedy", [None, "projection"])
+def test_terminal_threshold_crossed_by_the_jump_fires_at_the_impact(remedy):
+    m = dk.examples.pendulum_wall(0.5)
+    x, y = m.variables["x"].sym, m.variables["y"].sym
+    energy = 0.5 * (m.der(x) ** 2 + m.der(y) ** 2) + 9.81 * (y + 1)
+    # 9.81 at the start, x e^2 = 1/4 per impact: 2.45 after the first, 0.61 after the second
+    m.event(energy - 1.0, name="low_energy", direction=-1, terminal=True)
+    r = dk.reduce_index(m)
+    init = dk.initialize(r, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
+    tr = dk.simulate(r, np.linspace(0, 5, 51), init, stabilization=remedy, rtol=1e-10,
+                     atol=1e-10)
+    t2 = pendulum_wall_impacts(2, 0.5)[1]
+    assert [n for _, n in tr.events] == ["wall", "wall", "low_energy"]
+    assert abs(tr.events[-1][0] - t2) < 1e-8 and tr.t[-1] == tr.events[-1][0]
+    assert tr.stats["terminated_by"] == "low_energy"

@@ -172,6 +172,13 @@ class _Monitors:
             out[:, self.n_ev:] = np.asarray(res, dtype=float).reshape(len(self.found), n).T
         return out
 
+    def event_values(self, row: Mapping, t: float) -> np.ndarray:
+        """The declared events' functions at one point given by name."""
+        if not self.n_ev:
+            return np.zeros(0)
+        v = self._vec({n: np.atleast_1d(row[n]) for n in self.used if n != "t"}, t)
+        return np.asarray(self.fev(v.T), dtype=float).ravel()
+
     def reset_targets(self, k: int, row: Mapping, t: float) -> dict[str, float]:
         ev = self.decl[k]
         if not ev.reset:
@@ -471,6 +478,25 @@ def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
     if em.zeno:
         raise SimulationError(em.zeno, t=float(em.log[-1][0]), trajectory=traj)
     return traj
+
+
+_VALUES: dict = {}
+
+
+def _values_at(r, t, x, z, u, p) -> dict[str, float]:
+    """Every name of ``r.variables`` at one point (one CasADi Function per system)."""
+    key = id(r)
+    hit = _VALUES.get(key)
+    if hit is None or hit[0] is not r:
+        names = list(r.variables)
+        f = ca.Function("values_at", [r.t, r.x, r.z, r.u, r.p],
+                        [ca.vertcat(*[ca.SX(r.variables[n]) for n in names])])
+        if len(_VALUES) > 16:
+            _VALUES.clear()
+        hit = _VALUES[key] = (r, names, f)
+    _, names, f = hit
+    vals = np.asarray(f(t, x, z, u, p), dtype=float).ravel()
+    return dict(zip(names, vals, strict=True))
 
 
 def _row(traj: Trajectory, j: int) -> dict[str, float]:
@@ -799,6 +825,26 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                     stats["reset_metric"] = info["metric"]
                     post.update(zip(r_loc.x_names, xe, strict=True))
                     post.update(zip(r_loc.z_names, ze, strict=True))
+        # a function that the jump itself carried across zero fires at the event too
+        jump_terminal = False
+        if any(i < mon.n_ev and mon.decl[i].reset for i in fired):
+            vals_post = _values_at(r_loc, te, xe, ze, ue, pv_of(branches))
+            gp = mon.event_values(vals_post, te)
+            for i in range(mon.n_ev):
+                if i in fired or tvals[i] == 0 or np.sign(gp[i]) == np.sign(tvals[i]):
+                    continue
+                rising = tvals[i] < 0
+                if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
+                    events.append((te, mon.names[i]))
+                    ref[i], band[i] = None, 10.0 * abs(float(gp[i])) + 1e-300
+                    jump_terminal = jump_terminal or mon.decl[i].terminal
+                    if jump_terminal and "terminated_by" not in stats:
+                        stats["terminated_by"] = mon.names[i]
+                else:
+                    ref[i] = 1.0 if gp[i] > 0 else -1.0
+            stats["events"] = len(events)
+        if jump_terminal:
+            break
         if any(i >= mon.n_ev for i in fired):
             branches = branch_values(found, r_work, te, xe, ze, ue, pv_user)
         r_cur = r_loc

@@ -174,8 +174,8 @@ def _cmd_simulate(args) -> int:
 def _cmd_tour(args) -> int:
     from .tour import run_tour
 
-    run_tour(out=args.out, t_end=args.t_end, quiet=args.quiet, animations=not args.no_animations,
-             ocp=not args.no_ocp)
+    run_tour(out=args.out, t_end=args.t_end, quiet=args.quiet,
+             gifs=args.gifs and not args.no_animations, ocp=not args.no_ocp)
     return 0
 
 
@@ -188,7 +188,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", default="daekit-tour", help="folder for the figures (default: %(default)s)")
     t.add_argument("--t-end", type=float, default=100.0, help="simulated seconds (default: 100)")
     t.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    t.add_argument("--no-animations", action="store_true", help="skip the GIF animations")
+    t.add_argument("--gifs", action="store_true",
+                   help="also write the GIF animations (real time, 480 pixels; a few seconds more)")
+    t.add_argument("--no-animations", action="store_true",
+                   help="no GIF animations (the default; overrides --gifs)")
     t.add_argument("--no-ocp", action="store_true", help="skip the optimal control section")
     t.set_defaults(func=_cmd_tour)
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from .wording import count
+
 __all__ = ["ReducedDAE"]
 
 
@@ -103,6 +105,6 @@ class ReducedDAE:
 
     def __repr__(self) -> str:
         return (
-            f"ReducedDAE({self.method}: {self.nx} states, {self.nz} algebraic, {self.nu} inputs, "
-            f"{len(self.invariant_names)} invariants)"
+            f"ReducedDAE({self.method}: {count(self.nx, 'state')}, {self.nz} algebraic, "
+            f"{count(self.nu, 'input')}, {count(len(self.invariant_names), 'invariant')})"
         )

@@ -45,6 +45,10 @@ and says whether and when it fired, ``act`` says what to do)::
   two rows at the event time: before and after), ``terminal=True`` to stop, ``ignore=True``
   when the firing turned out not to be an event (the monitor is asked again on the rest of the
   segment; nothing restarts), and a ``label`` for ``driver.events``.
+- ``at_end(seg, driver, state)`` (optional): the segment ended without a firing; IDAS
+  restarts there anyway, so an Action costs nothing extra (projection projects early when the
+  drift is near the tolerance); ``horizon(state)`` (optional) suggests the next segment's
+  length (the drift monitor predicts its next crossing).
 - ``accept(seg, upto, state)`` (optional) is told which rows were kept (``seg.t[:upto + 1]``),
   e.g. to remember the last value of a pivot measure; ``rescue(driver, t, x, z, system, error,
   state)`` (optional) may return an Action when IDAS failed in a segment starting at ``t``
@@ -167,6 +171,15 @@ class Monitor:
         """Rows ``seg.t[:upto + 1]`` were kept; returns the new state."""
         return state
 
+    def at_end(self, seg: Segment, driver: Driver, state: Any) -> tuple[Action | None, Any]:
+        """The segment ended without a firing and IDAS restarts at ``seg.t[-1]``: an Action to
+        take there at no extra cost (e.g. project early), or None."""
+        return None, state
+
+    def horizon(self, state: Any) -> float | None:
+        """The length of the next segment this monitor suggests (None: the driver's rule)."""
+        return None
+
     def rescue(self, driver: Driver, t: float, x, z, system: System, error: IntegrationFailure,
                state: Any) -> tuple[Action | None, Any]:
         """IDAS failed in a segment starting at ``t``: an Action to try, or None."""
@@ -229,13 +242,13 @@ class Driver:
     progress : bool
         Progress bar (on a terminal only).
     checks : int
-        Check points per segment when there are monitors.
+        Check points per segment (default 32 with monitors, 64 without).
     label : str
         For the progress bar and messages.
     """
 
     def __init__(self, system: System, tg, x0, z0, pv, monitors=(), progress: bool = False,
-                 checks: int = 32, label: str = "simulate") -> None:
+                 checks: int | None = None, label: str = "simulate") -> None:
         self.system = system
         self.tg = np.asarray(tg, dtype=float)
         self.x0 = np.asarray(x0, dtype=float).ravel()
@@ -243,40 +256,55 @@ class Driver:
         self.pv = np.asarray(pv, dtype=float).ravel()
         self.monitors = list(monitors)
         self.progress = progress
-        self.checks = int(checks)
+        # check points per segment: with monitors where they look; without, they only bound
+        # the steps a failing attempt may take (IDAS interpolates them: no effect on steps)
+        self.checks = int(checks) if checks is not None else (32 if self.monitors else 64)
         self.label = label
         self.span = float(self.tg[-1] - self.tg[0])
         self.stats: dict = {"steps": 0, "residual_evaluations": 0, "jacobian_evaluations": 0,
                             "error_test_failures": 0, "newton_failures": 0, "segments": 0,
                             "restarts": 0, "relocations": 0, "_p": self.pv}
         self.notes: list[str] = []
+        #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
+        self.current = system
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
         for k, v in st.items():
             self.stats[k] = self.stats.get(k, 0) + v
 
-    def _attempt(self, system: System, grid, x, z):
-        """Run ``grid`` from ``(x, z)``: first with a step budget, then IDAS variants."""
+    def _attempt(self, system: System, grid, x, z, first: bool = False):
+        """Run ``grid`` from ``(x, z)``: with a step budget per grid interval from the
+        consistent values (at the very start: IDAS's own consistent initialization first),
+        then excluding the algebraic unknowns from the error test; without monitors a last
+        attempt gets the full budget. A failing attempt gives up early: grid intervals are
+        short (check points), the budget is ``System.first_budget`` steps per interval."""
         user_budget = "max_num_steps" in system.options
-        tries: list[dict] = [{} if user_budget else {"max_num_steps": System.first_budget}]
+        budget = {} if user_budget else {"max_num_steps": System.first_budget}
+        tries: list[tuple[dict, bool]] = []
+        if first and system.r.info.get("index", 1) < 2:
+            tries.append((budget, False))  # IDACalcIC (CasADi's default start)
+        tries.append((budget, True))
         if "suppress_algebraic" not in system.options:
-            tries.append({"suppress_algebraic": True, "step0": 1e-12 * max(1.0, self.span)})
-        if not user_budget:
-            tries.append({})
-        first = None
-        for k, extra in enumerate(tries):
+            tries.append(({**budget, "suppress_algebraic": True,
+                           "step0": 1e-12 * max(1.0, self.span)}, True))
+        if not user_budget and not self.monitors:
+            tries.append(({}, True))
+        first_exc = None
+        for k, (extra, consistent) in enumerate(tries):
             try:
-                X, Z, st = system.run(grid, x, z, self.pv, extra, span=self.span)
+                X, Z, st = system.run(grid, x, z, self.pv, extra, consistent=consistent,
+                                      span=self.span)
             except IntegrationFailure as exc:
-                first = first or exc
+                first_exc = first_exc or exc
+                self.stats["failed_attempts"] = self.stats.get("failed_attempts", 0) + 1
                 continue
             self._count(st)
-            if k:
-                self.notes.append(f"at t = {grid[0]:.6g} a first IDAS attempt failed "
-                                  f"({first.why}); a retry with other settings succeeded")
+            if k and not (first and k == 1):
+                self.notes.append(f"a first IDAS attempt failed ({first_exc.why}); a retry "
+                                  "with other settings succeeded")
             return X, Z
-        raise first
+        raise first_exc
 
     def state_at(self, system: System, ta: float, xa, za, t: float):
         """The state ``(x, z)`` at ``t >= ta`` integrated from ``(xa, za)`` at ``ta``."""
@@ -348,7 +376,7 @@ class Driver:
         pts = [np.array([t]), outs]
         if outs.size == 0 or outs[-1] < tb:
             pts.append(np.array([tb]))
-        if self.monitors:
+        if True:
             n = self.checks
             dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
             if dts:
@@ -390,7 +418,7 @@ class Driver:
                 grid, is_out, j = self._grid(t, tb, k)
                 self.stats["segments"] += 1
                 try:
-                    X, Z = self._attempt(system, grid, x, z)
+                    X, Z = self._attempt(system, grid, x, z, first=(t == tg[0]))
                 except IntegrationFailure as exc:
                     act = None
                     for mi, m in enumerate(self.monitors):
@@ -427,7 +455,15 @@ class Driver:
                     bar.update(t)
                     if t < tg[-1]:
                         self.stats["restarts"] += 1
-                    L *= 2.0
+                        # IDAS restarts here anyway: monitors may act at no extra cost
+                        for mi, m in enumerate(self.monitors):
+                            act, states[mi] = m.at_end(seg, self, states[mi])
+                            if act is not None:
+                                if act.label is not None:
+                                    result.events.append((t, act.label))
+                                system, x, z, cur = self._apply(act, system, t, x, z, result,
+                                                                cur)
+                    L = self._next_length(states, 2.0 * L)
                     continue
                 mi, f, act = fired
                 te = float(f.t)
@@ -459,7 +495,7 @@ class Driver:
                         k += 1
                 if act.terminal:
                     break
-                L = max(1.5 * (te - t), 1e-6 * self.span, L / 64)
+                L = self._next_length(states, max(1.5 * (te - t), 1e-6 * self.span, L / 64))
                 t = te
                 self.stats["restarts"] += 1
                 bar.update(t)
@@ -469,6 +505,12 @@ class Driver:
         if self.notes:
             self.stats["note"] = "; ".join(dict.fromkeys(self.notes))
         return result
+
+    def _next_length(self, states, default: float) -> float:
+        hs = [h for m, st in zip(self.monitors, states, strict=True)
+              if (h := m.horizon(st)) is not None and h > 0]
+        L = min(hs) if hs else default
+        return max(L, 1e-9 * max(self.span, 1e-300))
 
     def _earliest(self, seg: Segment, states):
         """The earliest firing over the monitors as ``(monitor index, Firing, Action)``. Only
@@ -512,6 +554,7 @@ class Driver:
         z = np.asarray(act.z if act.z is not None else z, dtype=float).ravel().copy()
         if act.system is not None and act.system is not system:
             system = act.system
+            self.current = system
             cur = (system, [], [], [])
             result.parts.append(cur)
         z = self.consistent(system, t, x, z)

@@ -53,7 +53,7 @@ Zeno behaviour
     so far and, for a geometric sequence of event times, the estimated accumulation time.
 Cost
     A segment runs to the end of the span or to ``t + H`` (``H`` starts at a quarter of the span,
-    is set to three times the last gap between events after each event and doubled after a
+    is set to 2.7 times the last gap between events after each event and doubled after a
     segment without one), so little is integrated past an event and thrown away. After an
     event the check spacing is also at most a tenth of the time between the last two events,
     so that a sequence of shrinking gaps (a bouncing ball) is followed.
@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Mapping
 
 import casadi as ca
@@ -440,10 +441,11 @@ def _zeno_message(events, zeno_count, zeno_window, max_events, span) -> str | No
 
 def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol, options,
                      dt_check, zeno_count, zeno_window, max_events, progress, wall0,
-                     stabilization) -> Trajectory:
-    """The continuous-run remedies (none, Baumgarte, GGL) on the event-driven driver."""
-    from .driver import Driver
-    from .system import system_for
+                     stabilization, seg_stab, inputs, params, drift_tol=None,
+                     project_output=True) -> Trajectory:
+    """The remedies on the event-driven driver (none, Baumgarte, projection): ``simulate`` with
+    the :class:`EventMonitor` among its monitors."""
+    from .dispatch import simulate
 
     t0 = float(tg[0])
     span = float(tg[-1] - tg[0])
@@ -452,18 +454,20 @@ def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
     z0 = np.array([row0.get(n, 0.0) for n in r_work.z_names])
     u0 = sig.value(t0)
     b0 = branch_values(found, r_work, t0, x0, z0, u0, pv_user)
-    opts = dict(options)
-    if r_work.info.get("index", 1) >= 2:
-        opts.setdefault("suppress_algebraic", True)
-    system = system_for(rb, sig, rtol, atol, opts)
     em = EventMonitor(r_work, rb, found, mon, r_work.nx, pv_user, dt_check, span, zeno_count,
                       zeno_window, max_events)
     em.rb_tol = rtol
-    d = Driver(system, tg, np.concatenate([x0, b0]), z0, pv_user, [em], progress=progress)
-    res = d.run()
-    traj = res.trajectory({"events": len(em.log), **em.stats,
-                           "wall_time": time.perf_counter() - wall0,
-                           "stabilization": stabilization})
+    row = dict(row0)
+    row.update({f"__switch{k}": float(b) for k, b in enumerate(b0)})
+    init = _init_of(rb, t0, row, pv_user, u0)
+    extra = ({"drift_tol": drift_tol, "project_output": project_output}
+             if seg_stab == "projection" else {})
+    traj = simulate(rb, tg, init, inputs=inputs, params=params, stabilization=seg_stab,
+                    rtol=rtol, atol=atol, progress=progress, monitors=[em], events=False,
+                    **extra, **options)
+    traj.stats.update({"events": len(em.log), **em.stats,
+                       "wall_time": time.perf_counter() - wall0,
+                       "stabilization": stabilization})
     traj.events = list(em.log)
     last = em.log[-1] if em.log else None
     at_last = [n_ for te_, n_ in em.log if last is not None and te_ == last[0]]
@@ -516,6 +520,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                     atol=1e-8, poles=(-1.0, -1.0), event_spacing: float | None = None,
                     zeno_count: int = 10, zeno_window: float | None = None,
                     max_events: int = 10000, progress: bool = False, use_driver: bool = True,
+                    drift_tol: float | None = None, project_output: bool = True,
                     **options) -> Trajectory:
     """Simulate ``r`` with its model's events and its switches (see the module docstring).
 
@@ -535,7 +540,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     True
     """
     from ..reduction import baumgarte, reselect, selection_condition
-    from .idas import simulate
+    from .dispatch import simulate
     from .inputs import InputSignal, resolve_params
 
     wall0 = time.perf_counter()
@@ -557,8 +562,10 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     sig = InputSignal(r_work, inputs)
 
     # the first point: consistent initial values of r (through simulate's own path)
-    first = simulate(r_work, tg[:2], init, inputs=inputs, params=params,
-                     stabilization=seg_stab, rtol=rtol, atol=atol, events=False, **options)
+    with warnings.catch_warnings():  # the run itself says what it says
+        warnings.simplefilter("ignore")
+        first = simulate(r_work, tg[:2], init, inputs=inputs, params=params,
+                         stabilization=seg_stab, rtol=rtol, atol=atol, events=False, **options)
     row0 = _row(first, 0)
     x0 = np.array([row0.get(n, 0.0) for n in r_work.x_names])
     z0 = np.array([row0.get(n, 0.0) for n in r_work.z_names])
@@ -577,7 +584,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     spacing = float(np.min(np.diff(tg))) if tg.size > 1 else span
     if event_spacing:
         dt_check = float(event_spacing)
-    elif seg_stab is not None:  # projection, dummy derivatives restart at every grid point
+    elif seg_stab == "dummy_derivatives":  # segments restart at every grid point
         dt_check = spacing
     else:
         dt_check = min(spacing, span / 200.0)
@@ -586,10 +593,11 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
 
     # the continuous-run remedies on the driver; an index-2 (GGL) system on segments of
     # simulate's own GGL path (its restart needs a moderate first step from a consistent point)
-    if seg_stab is None and use_driver and r_work.info.get("index", 1) < 2:
+    if seg_stab != "dummy_derivatives" and use_driver and not index2:
         return _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
                                 options, dt_check, zeno_count, zeno_window, max_events,
-                                progress, wall0, stabilization)
+                                progress, wall0, stabilization, seg_stab, inputs, params,
+                                drift_tol, project_output)
     r_cur = rf
     if dummy:
         r_cur = r_work
@@ -634,7 +642,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         dt_seg = min(dt_check, last_gap / 10.0) if last_gap else dt_check
         ncheck = max(1, int(math.ceil((t_end - t_cur) / dt_seg)))
         if seg_stab is not None and not event_spacing and dt_seg >= spacing:
-            # projection, dummy derivatives restart at every grid point: the output points only
+            # segments that restart at every grid point: the output points only
             pts = np.union1d(pts, users)
         else:
             pts = np.union1d(np.union1d(pts, users), np.linspace(t_cur, t_end, ncheck + 1))
@@ -863,7 +871,9 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                             | dict(zip(r_cur.z_names, ze, strict=True)), pv_of(branches), ue)
         gap = te - events[-len(fired) - 1][0] if len(events) > len(fired) else te - t0
         last_gap = gap if gap > 0 else last_gap
-        H = max(3.0 * gap, 1e-6 * span)
+        # 2.7, not an integer: a periodic motion (e = 1) would otherwise end every segment on
+        # the same phase, e.g. a turning point where a state selection is singular
+        H = max(2.7 * gap, 1e-6 * span)
         t_cur = te
         first_row_is_post = True
         if te >= tf - 1e-14 * max(1.0, abs(tf)):

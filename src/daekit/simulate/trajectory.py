@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model import NameNotFoundError, expand_name
+from ..wording import count
 
 __all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
 
@@ -183,6 +184,7 @@ class Trajectory:
     def __repr__(self) -> str:
         span = f"t in [{self.t[0]:g}, {self.t[-1]:g}]" if self.t.size else "empty"
         return (
-            f"Trajectory({self.t.size} points, {span}; {', '.join(self.names[:8])}"
-            f"{', ...' if len(self.names) > 8 else ''}; {len(self.invariant_names)} invariants)"
+            f"Trajectory({count(self.t.size, 'point')}, {span}; {', '.join(self.names[:8])}"
+            f"{', ...' if len(self.names) > 8 else ''}; "
+            f"{count(len(self.invariant_names), 'invariant')})"
         )

@@ -4,22 +4,24 @@
 its equations contain switches (``if_else`` conditions, ``fabs``/``sign``/``fmin``/``fmax``
 kinks; :mod:`daekit.events`). Two paths share the rules below:
 
-* without stabilization and with Baumgarte, the events are a monitor,
-  :class:`EventMonitor`, of the event-driven driver :mod:`daekit.simulate.driver` (one
-  continuous IDAS run, interrupted only at an event; location by the driver's Illinois
-  re-integration from the last row before the crossing, to ``rtol * max(1, |t|)``; the event
-  point is the last one before the crossing); the switch branches ride along as constant
-  states (:func:`with_branch_states`), so flipping one is a reset;
-* with projection, dummy derivatives or a GGL (index-2) system the time span is integrated in
-  *segments*, each an ordinary run of that remedy through :func:`daekit.simulate`, on a grid
-  of the output points plus check points, and located by re-integration as below (the event
-  point is the first one past the crossing). This path was written before the driver existed;
-  it moves onto the driver when the driver's projection and dummy-derivative monitors do.
+* without stabilization, with Baumgarte and with projection (sim's drift-tolerance
+  ``DriftMonitor``), the events are one more monitor, :class:`EventMonitor`, of the
+  event-driven driver :mod:`daekit.simulate.driver`, passed through ``simulate(...,
+  monitors=[...])``: one continuous IDAS run, interrupted only at an event; location by the
+  driver's Illinois re-integration from the last row before the crossing, to
+  ``rtol * max(1, |t|)``; the event point is the last one before the crossing. The switch
+  branches ride along as constant states (:func:`with_branch_states`), so flipping one is a
+  reset;
+* with dummy derivatives or a GGL (index-2) system the time span is integrated in *segments*,
+  each an ordinary run of that remedy through :func:`daekit.simulate`, on a grid of the output
+  points plus check points, and located by re-integration as below (the event point is the
+  first one past the crossing). ``use_driver=False`` sends the other remedies this way too.
 
 Monitoring
     Every event function and switching function is evaluated at every point of a segment's
     grid: the output points and extra check points so that no check interval is longer than
-    ``event_spacing`` (default: the smaller of the output spacing and 1/200 of the span). A
+    ``event_spacing`` (default: the smaller of the output spacing and 1/200 of the span; with
+    dummy derivatives, whose segments restart at every grid point, the output spacing). A
     crossing is a change of sign between two consecutive check points (in the event's
     ``direction``). **Rule for double crossings:** a function that crosses zero twice inside
     one check interval is not seen; make ``event_spacing`` shorter than the shortest time the
@@ -27,9 +29,9 @@ Monitoring
 Location
     By re-integration from the last check point before the crossing (same remedy's system,
     same tolerances) with the Illinois variant of regula falsi on the crossing function,
-    until the bracket is shorter than ``rtol * max(1, |t|)``. The event time is the right end of
-    the bracket (just past the crossing); its accuracy is that of the integrated solution,
-    about ``atol / |g'|``. Functions that crossed within that bracket fire together
+    until the bracket is shorter than ``rtol * max(1, |t|)``. The event time is an end of the
+    bracket (on the driver the one before the crossing, on segments the one past it); its
+    accuracy is that of the integrated solution, about ``atol / |g'|``. Functions that crossed within that bracket fire together
     (*simultaneous*), declared events in declaration order, then switches.
 After an event
     The trajectory gets a row at the event time with the values just before it. Resets are

@@ -31,8 +31,9 @@ Location
     same tolerances) with the Illinois variant of regula falsi on the crossing function,
     until the bracket is shorter than ``rtol * max(1, |t|)``. The event time is an end of the
     bracket (on the driver the one before the crossing, on segments the one past it); its
-    accuracy is that of the integrated solution, about ``atol / |g'|``. Functions that crossed within that bracket fire together
-    (*simultaneous*), declared events in declaration order, then switches.
+    accuracy is that of the integrated solution, about ``atol / |g'|``. Functions that crossed
+    within that bracket fire together (*simultaneous*), declared events in declaration order,
+    then switches.
 After an event
     The trajectory gets a row at the event time with the values just before it. Resets are
     evaluated on these values, applied in order, and consistency is restored on the reduced

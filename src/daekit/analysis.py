@@ -262,7 +262,7 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     >>> dk.is_index1(dk.examples.l3()).rank
     6
     """
-    Model.require(model, "is_index1")
+    model = Model.require(model, "is_index1")
     model.validate()
     return _at_finite_point(model, point, seed, lambda pt: _easy_test(model, pt), "is_index1")
 
@@ -436,7 +436,7 @@ def differential_index(
     >>> differential_index(dk.examples.gear_petzold()).index
     2
     """
-    Model.require(model, "differential_index")
+    model = Model.require(model, "differential_index")
     model.validate()
     inc = model.incidence()
     eq_lab, unk_lab = _components(inc)
@@ -765,7 +765,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     >>> a.index, a.dof, a.equation_offsets["rod"]
     (3, 4, 2)
     """
-    Model.require(model, "analyze")
+    model = Model.require(model, "analyze")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns

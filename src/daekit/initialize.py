@@ -75,17 +75,26 @@ class InitialValues:
         Inputs at ``t0`` and the parameter values used.
     values : dict of str to float
         Every element of the original model (``"p[0]"``, ``"der(p)[0]"``, ``"z"``, inputs).
-    free : set of str
-        A set of state element names that could have been fixed freely (one choice of dynamic
-        degrees of freedom; found by a column-pivoted QR of the consistency Jacobian, or for
-        big systems by a matched sparse basis of it). States you fixed are preferred.
+    free : list of str
+        The state values that are still free: they could be fixed in addition to ``fixed``
+        (in the order of ``x_names``). Together with the fixed values they form
+        ``dof_names``.
+    fixed : list of str
+        The element names you fixed, in your order (the implied ones also in ``redundant``).
+    dof_names : list of str
+        One choice of dynamic degrees of freedom, ``dof`` state names in state order: a set of
+        values that can be fixed freely (found by a column-pivoted QR of the consistency
+        Jacobian, or for big systems by a matched sparse basis of it). States you fixed are
+        preferred.
     dof : int
-        Number of dynamic degrees of freedom (``len(free)``).
+        Number of dynamic degrees of freedom (``len(dof_names)``).
     redundant : list of str
         Fixed values that were implied by the others (consistent, hence accepted).
     residual : float
         Max |alg|, |invariant| at the solution.
     iterations : int
+    notes : list of str
+        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced).
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
     """
@@ -96,13 +105,16 @@ class InitialValues:
     u0: np.ndarray
     p: np.ndarray
     values: dict[str, float]
-    free: set[str] = field(default_factory=set)
+    free: list[str] = field(default_factory=list)
     dof: int = 0
     redundant: list[str] = field(default_factory=list)
     residual: float = 0.0
     iterations: int = 0
     x_names: list[str] = field(default_factory=list)
     z_names: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    fixed: list[str] = field(default_factory=list)
+    dof_names: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
         from .simulate.trajectory import expand_name
@@ -124,6 +136,16 @@ def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
     """(element name, expression of (t,x,z,u,p), value) for each element meant by ``key``."""
     from .simulate.trajectory import NameNotFoundError, expand_name
 
+    pnames = list(getattr(r, "p_names", []) or [])
+    if pnames and isinstance(key, str):
+        try:
+            expand_name(key, dict.fromkeys(pnames), "the parameters")
+        except NameNotFoundError:
+            pass
+        else:
+            raise InitializationError(
+                f"{what}: {key} is a parameter, not a variable: use params={{{key!r}: {val!r}}}"
+            )
     try:
         elems = expand_name(key, r.variables, "the model")
     except NameNotFoundError as exc:
@@ -166,6 +188,8 @@ def initialize(
     Parameters
     ----------
     r : ReducedDAE
+        A Model or LagrangianSystem is reduced automatically (see
+        :func:`daekit.reduction.as_reduced`; ``init.notes`` says how).
     t0 : float
         Initial time (invariants and inputs may depend on time).
     guess : dict, optional
@@ -201,9 +225,21 @@ def initialize(
     >>> init = initialize(r, guess={"p": [0.9, 0.1]}, fixed={"v[0]": 0.0})
     >>> bool(abs(np.linalg.norm(init["p"]) - 1) < 1e-12), init.dof
     (True, 2)
+    >>> init.fixed, len(init.free)        # one more value (e.g. p[1]) could be fixed
+    (['v[0]'], 1)
     """
+    from .reduced import ReducedDAE
     from .simulate.inputs import InputSignal, resolve_params
 
+    notes: list[str] = []
+    if not isinstance(r, ReducedDAE):  # a Model or LagrangianSystem: reduced (and noted)
+        from .reduction.accept import as_reduced
+
+        r = as_reduced(r, "initialize", notes=notes)
+        out = initialize(r, t0, guess=guess, fixed=fixed, inputs=inputs, params=params,
+                         tol=tol, max_iter=max_iter)
+        out.notes = notes + out.notes
+        return out
     base = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
     if base is not None:
         # an index-2 form (GGL): alg = 0 leaves its multipliers underdetermined; initialize
@@ -218,7 +254,12 @@ def initialize(
             values={**b.values, **dict.fromkeys(extra, 0.0)},
         )
 
-    t0 = float(t0)
+    try:
+        t0 = float(t0)
+    except (TypeError, ValueError):
+        raise InitializationError(f"initialize: t0 must be a number, got {t0!r}") from None
+    if not np.isfinite(t0):
+        raise InitializationError(f"initialize: t0 must be a finite number, got {t0!r}")
     nx, nz = r.nx, r.nz
     n = nx + nz
     pv = resolve_params(r, params)
@@ -452,9 +493,15 @@ def initialize(
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = _evaluate_variables(r, t0, x0, z0, u0, pv)
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
+    # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
+    # order; the free values are those of it that were not fixed (also under another name)
+    dof_names = [nm for nm in r.x_names if nm in free]
+    fixed_x = {position[ca.SX(e).element_hash()] for _, e, _ in fixed_items
+               if ca.SX(e).is_symbolic() and ca.SX(e).element_hash() in position}
+    free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
-        t0, x0, z0, u0, pv, values, free, len(free), redundant, cons, it,
-        list(r.x_names), list(r.z_names),
+        t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
+        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
     )
 
 

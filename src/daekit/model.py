@@ -706,13 +706,17 @@ class Model:
 
     @staticmethod
     def require(obj, where: str) -> Model:
-        """``obj`` if it is a Model, else a :class:`ModelError` saying what ``where`` needs."""
-        if not isinstance(obj, Model):
-            raise ModelError(
-                f"{where} needs a daekit.Model, got {type(obj).__name__}"
-                + (" (call .model() on a LagrangianSystem)" if hasattr(obj, "index1") else "")
-            )
-        return obj
+        """``obj`` if it is a Model, its ``.model()`` if it is a
+        :class:`~daekit.mechanics.LagrangianSystem` (the one rule of every entry point), else a
+        :class:`ModelError` saying what ``where`` needs."""
+        if isinstance(obj, Model):
+            return obj
+        if hasattr(obj, "index1") and callable(getattr(obj, "model", None)):
+            return obj.model()
+        raise ModelError(
+            f"{where} needs a daekit.Model, got {type(obj).__name__} (a "
+            "daekit.mechanics.LagrangianSystem is accepted too)"
+        )
 
     def validate(self) -> None:
         """Check the model; raise :class:`ModelError` or :class:`StructuralError` naming the fault.

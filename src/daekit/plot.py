@@ -20,12 +20,14 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-__all__ = ["plot_trajectory", "plot_invariants", "plot_structure", "invariant_order",
-           "REMEDY_COLORS", "remedy_color", "Plane", "best_plane", "plot_in_plane",
-           "STRUCTURE_LEGEND"]
+__all__ = ["plot_trajectory", "plot_invariants", "plot_overview", "plot_structure",
+           "invariant_order", "REMEDY_COLORS", "remedy_color", "Plane", "best_plane",
+           "plot_in_plane", "STRUCTURE_LEGEND"]
 
 _ORDER_RE = re.compile(r"^d(\d*)/dt(\d*)\s+(.*)$")
 
@@ -121,6 +123,55 @@ def plot_trajectory(traj, names: Iterable[str] | str | None = None, ax=None):
     return fig
 
 
+def plot_overview(traj, exclude: Iterable[str] = (), floor: float = 1e-17):
+    """Every variable of ``traj`` (its own panel each, derivatives and the names in
+    ``exclude``, e.g. the parameters, left out), then the invariants ``|c|`` on a log scale,
+    one panel per derivative level. What ``daekit simulate --plot`` draws.
+
+    >>> import numpy as np, matplotlib
+    >>> matplotlib.use("Agg")
+    >>> from daekit.simulate import Trajectory
+    >>> t = np.linspace(0, 1, 5)
+    >>> tr = Trajectory(t, {"x": t, "y": -t, "der(x)": 1 + 0 * t, "L": 1 + 0 * t},
+    ...                 np.c_[1e-9 * t, 1e-8 * t], ["rod", "d/dt rod"])
+    >>> [a.get_ylabel() for a in plot_overview(tr, exclude=["L"]).axes]
+    ['x', 'y', '|c|', "|c'|"]
+    """
+    import matplotlib.pyplot as plt
+
+    skip = set(exclude)
+    names = [n for n in traj.names if not n.startswith("der(") and n not in skip]
+    levels: dict[int, list[int]] = {}
+    for j, n in enumerate(traj.invariant_names):
+        levels.setdefault(invariant_order(n)[0], []).append(j)
+    order = sorted(levels)
+    rows = max(len(names) + len(order), 1)
+    fig, axs = plt.subplots(rows, 1, figsize=(7.5, 1.9 * rows + 0.5), sharex=True, squeeze=False)
+    axes = list(axs[:, 0])
+    for a, name in zip(axes, names, strict=False):
+        vals = traj[name]
+        if vals.ndim == 1:
+            a.plot(traj.t, vals, lw=1.2)
+        else:
+            for j in range(vals.shape[1]):
+                a.plot(traj.t, vals[:, j], lw=1.2, label=f"{name}[{j}]")
+            a.legend(loc="upper right", fontsize="small", ncol=min(vals.shape[1], 4))
+        a.set_ylabel(name)
+        a.grid(True, alpha=0.3)
+    title = {0: "|c|", 1: "|c'|", 2: "|c''|"}
+    for a, lvl in zip(axes[len(names):], order, strict=False):
+        for j in levels[lvl]:
+            a.semilogy(traj.t, np.maximum(np.abs(traj.invariants[:, j]), floor), lw=1.0,
+                       label=traj.invariant_names[j])
+        a.set_ylabel(title.get(lvl, f"|c^({lvl})|"))
+        a.grid(True, which="both", alpha=0.3)
+        if len(levels[lvl]) <= 8:
+            a.legend(loc="upper right", fontsize="small")
+    axes[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    return fig
+
+
 def plot_invariants(traj, axes=None, floor: float = 1e-17):
     """The lecture's drift figure: ``|c|`` (position level) and ``|c'|`` (velocity level), and
     higher levels if present, over time on logarithmic scales, one panel per derivative level.
@@ -163,7 +214,12 @@ class Plane:
     """The plane a 3D path lies in (:func:`best_plane`): ``project(points)`` gives in-plane
     coordinates along ``basis`` (2 x 3, orthonormal) from ``origin``; ``normal``; ``labels`` of
     the two in-plane axes; ``out_of_plane`` the largest distance of a point from the plane;
-    ``name`` e.g. ``"y = 0"`` for a coordinate plane."""
+    ``name`` e.g. ``"y = 0"`` for a coordinate plane.
+
+    >>> pl = best_plane([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    >>> pl.name, pl.project([[2.0, 3.0, 0.0]]).tolist()
+    ('z = 0', [[2.0, 3.0]])
+    """
 
     origin: np.ndarray
     basis: np.ndarray
@@ -172,12 +228,12 @@ class Plane:
     out_of_plane: float
     name: str
 
-    def project(self, points) -> np.ndarray:
+    def project(self, points: ArrayLike) -> np.ndarray:
         """In-plane coordinates ``(N, 2)`` of points ``(N, 3)``."""
         return (np.asarray(points, dtype=float) - self.origin) @ self.basis.T
 
 
-def best_plane(points, names: tuple[str, str, str] = ("x", "y", "z"),
+def best_plane(points: ArrayLike, names: tuple[str, str, str] = ("x", "y", "z"),
                snap: float = 1e-6) -> Plane:
     """The least-squares plane through 3D ``points`` (rows), from their singular value
     decomposition. When its normal is within ``snap`` (radians, about) of a coordinate axis,
@@ -214,8 +270,8 @@ def best_plane(points, names: tuple[str, str, str] = ("x", "y", "z"),
                  "normal (" + ", ".join(f"{c:.2f}" for c in normal) + ")")
 
 
-def plot_in_plane(points, ax=None, unit: str = "m", names: tuple[str, str, str] = ("x", "y", "z"),
-                  **line_kw):
+def plot_in_plane(points: ArrayLike, ax: Any = None, unit: str = "m",
+                  names: tuple[str, str, str] = ("x", "y", "z"), **line_kw: Any) -> tuple[Any, Plane]:
     """Draw a 3D path in the plane it lies in (:func:`best_plane`), with equal scales.
 
     Returns ``(figure, plane)``; project other points with ``plane.project``.

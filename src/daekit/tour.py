@@ -310,6 +310,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _say(f"Figures written to {out.resolve()}:")
     for f in sorted(out.iterdir()):
         _say(f"  {f.name}")
+    if not gifs:
+        _say("Animations (GIF, real time; the drift of an unstabilized pendulum among them): "
+             "daekit tour --gifs")
     return rows
 
 

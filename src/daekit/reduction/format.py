@@ -29,6 +29,9 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
     >>> "0 = d2/dt2 rod:" in text
     True
     """
+    from .accept import as_reduced
+
+    r = as_reduced(r, "format_reduced")
     name = getattr(r.model, "name", "model")
     out = [
         f"{name} reduced by {r.method}: {count(r.nx, 'state')}, "

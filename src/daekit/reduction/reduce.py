@@ -82,7 +82,9 @@ def reduce_index(
 
     Parameters
     ----------
-    model : daekit.Model
+    model : daekit.Model or daekit.mechanics.LagrangianSystem
+        A LagrangianSystem is reduced as its :meth:`~daekit.mechanics.LagrangianSystem.model`
+        (its ``index1()`` is the mass-matrix form of the same reduction).
     method : ``"differentiate"`` or ``"dummy_derivatives"``
         ``"differentiate"``: Pryce's scheme (all derivatives below the highest become states,
         the undifferentiated equations and their lower derivatives are the invariants, which
@@ -133,6 +135,7 @@ def reduce_index(
     >>> r.input_derivatives, r.u_names
     (['der(u)', 'der(u,2)'], ['u', 'der(u)', 'der(u,2)'])
     """
+    model = Model.require(model, "reduce_index")  # a LagrangianSystem: its .model()
     if method == "dummy_derivatives":
         from .dummy import dummy_derivatives
 

@@ -17,6 +17,8 @@ from collections.abc import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from ..reduced import ReducedDAE
+from ..reduction.accept import as_reduced
 from ..wording import count
 from .driver import Driver
 from .idas import run_algebraic, run_idas
@@ -141,7 +143,8 @@ def simulate(
     Parameters
     ----------
     r : ReducedDAE
-        From :func:`daekit.reduce_index` (or by hand).
+        From :func:`daekit.reduce_index` (or by hand). A Model or a LagrangianSystem is reduced
+        automatically (:func:`daekit.reduction.as_reduced`; ``traj.stats["reduced"]`` says how).
     t : array
         Output times, strictly increasing; ``t[0]`` is the initial time. They are where results
         are read: IDAS interpolates them, and they never restart the integration nor limit its
@@ -213,6 +216,10 @@ def simulate(
     True
     """
     wall0 = time.perf_counter()
+    notes: list[str] = []
+    if not isinstance(r, ReducedDAE) and not (method == "rattle" and hasattr(r, "index1")):
+        # a Model (or LagrangianSystem): reduced once with the default method, noted in stats
+        r = as_reduced(r, "simulate", stabilization=stabilization, method=method, notes=notes)
     if method == "rattle":
         from .rattle import simulate_rattle
 
@@ -226,10 +233,13 @@ def simulate(
 
             return simulate_rattle_events(r, t, init, inputs=inputs, params=params,
                                           progress=progress, **options)
-        return simulate_rattle(
+        traj = simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,
         )
+        if notes:
+            traj.stats["reduced"] = notes[0]
+        return traj
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
     event_keys = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
@@ -245,10 +255,13 @@ def simulate(
                     "'projection' or 'dummy_derivatives'"
                 )
             check_grid(t)
-            return simulate_events(r, t, init, inputs=inputs, params=params,
+            traj = simulate_events(r, t, init, inputs=inputs, params=params,
                                    stabilization=stabilization, rtol=rtol, atol=atol,
                                    poles=poles, progress=progress, drift_tol=drift_tol,
                                    project_output=project_output, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
     options = {k: v for k, v in options.items() if k not in event_keys}
     if isinstance(stabilization, str) and stabilization.lower() == "none":
         stabilization = None
@@ -335,4 +348,6 @@ def simulate(
     traj.stats.setdefault("projections", 0)
     traj.stats["wall_time"] = time.perf_counter() - wall0
     traj.stats["stabilization"] = stabilization
+    if notes:
+        traj.stats["reduced"] = notes[0]
     return traj

@@ -163,6 +163,14 @@ class Trajectory:
             cols[f"invariant:{n}"] = self.invariants[:, j]
         return pd.DataFrame(cols, index=pd.Index(self.t, name="t"))
 
+    def save(self, path) -> str:
+        """Write this trajectory to ``path``, ``.parquet`` (pyarrow) or ``.npz`` (NumPy), a
+        lossless documented format (:mod:`daekit.simulate.storage`); read it back with
+        :func:`daekit.load_trajectory`. Returns the path written."""
+        from .storage import save_trajectory
+
+        return save_trajectory(self, path)
+
     def plot(self, names: Iterable[str] | str | None = None, ax=None):
         """Plot the named variables over time (all states when ``names`` is None).
 

@@ -305,3 +305,35 @@ def test_terminal_threshold_crossed_by_the_jump_fires_at_the_impact(remedy):
     assert [n for _, n in tr.events] == ["wall", "wall", "low_energy"]
     assert abs(tr.events[-1][0] - t2) < 1e-8 and tr.t[-1] == tr.events[-1][0]
     assert tr.stats["terminated_by"] == "low_energy"
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_switching_force_on_index3_pendulum_matches_minimal_coordinates(path):
+    """x'' = x T + f, f = -1 for x > 0 else +1 (an if_else in the index-3 model) against the
+    angle form theta'' = -g sin(theta) + f cos(theta) integrated independently (SciPy, with
+    its own event on sin(theta)): the switch times agree; a branch carried as a state must
+    stay crisp (a drift of 1e-27 once switched both branches on)."""
+    from scipy.integrate import solve_ivp
+
+    m = dk.Model("pend_switch")
+    x, y = m.state("x"), m.state("y")
+    T = m.algebraic("T")
+    m.equation(m.der(x, 2) - x * T - ca.if_else(x > 0, -1.0, 1.0), name="newton_x")
+    m.equation(m.der(y, 2) - (y * T - 9.81), name="newton_y")
+    m.equation(x**2 + y**2 - 1, name="rod")
+    r = dk.reduce_index(m)
+    init = dk.initialize(r, fixed={"x": 0.5, "der(x)": 0.0, "y": -np.sqrt(0.75)})
+    tr = dk.simulate(r, np.linspace(0, 3, 31), init, rtol=1e-10, atol=1e-10, **path)
+
+    def rhs(_t, s):
+        f = -1.0 if np.sin(s[0]) > 0 else 1.0
+        return [s[1], -9.81 * np.sin(s[0]) + f * np.cos(s[0])]
+
+    def cross(_t, s):
+        return np.sin(s[0])
+
+    ref = solve_ivp(rhs, (0, 3), [np.arcsin(0.5), 0.0], rtol=1e-12, atol=1e-12, max_step=1e-3,
+                    events=cross).t_events[0]
+    te = np.array([t for t, _ in tr.events])
+    assert te.size == ref.size >= 3
+    assert np.max(np.abs(te - ref)) < 1e-6

@@ -260,7 +260,9 @@ def _replay(r, exprs: list[ca.SX], frozen: bool, limit: int | None = None):
         if frozen and sw is not None:
             s = branch_syms[sw]
             if op in _RELATIONS:
-                val = s
+                # a crisp boolean even if the branch value drifts by rounding (carried as a
+                # constant state, IDAS may leave it 1e-27 off 0, which `?:` takes as true)
+                val = s > 0.5
             elif op == ca.OP_FABS:
                 val = s * args[0]
             elif op == ca.OP_SIGN:

@@ -26,7 +26,7 @@ Example
 >>> import numpy as np, daekit as dk
 >>> r = dk.reduce_index(dk.examples.pendulum_planar())
 >>> s = np.sqrt(0.5)
->>> x, z, info = restore(r, 0.0, np.array([s, 1.0, -s, 0.0]), np.zeros(3), [], r.p_values,
+>>> x, z, info = restore(r, 0.0, np.array([s, 1.0, -s, 0.0]), np.zeros(r.nz), [], r.p_values,
 ...                      {"der(x)": 1.0})
 >>> np.round(x, 12).tolist()    # positions kept; (1, 0) projected onto x dx + y dy = 0
 [0.707106781187, 0.5, -0.707106781187, 0.5]

@@ -231,8 +231,11 @@ def simulate(
         if events and getattr(getattr(r, "model", None), "events", None):
             from .events import simulate_rattle_events
 
-            return simulate_rattle_events(r, t, init, inputs=inputs, params=params,
+            traj = simulate_rattle_events(r, t, init, inputs=inputs, params=params,
                                           progress=progress, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
         traj = simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,

@@ -8,7 +8,8 @@ output points inside it, and ``checks`` evenly spaced check points). When one fi
 driver keeps the rows before the firing time, lets the monitor *act* (project, re-select the
 states, reset a state, stop), and starts the next segment there. A restart of IDAS happens
 only at such an event -- and at the end of a segment in which nothing fired, whose length
-doubles every time, so there are only logarithmically many of those. After an event the next
+quadruples every time (the first is a quarter of the span), so there are only
+logarithmically many of those. After an event the next
 segment is 1.5 times the time since the previous restart (events that recur, like drift
 crossing a tolerance, then cost little re-integration).
 
@@ -107,7 +108,9 @@ __all__ = ["Driver", "Monitor", "Segment", "Firing", "Action", "DriverResult"]
 @dataclass
 class Segment:
     """The rows of one IDAS run: ``t (K,)`` (row 0 the start), ``X (K, nx)``, ``Z (K, nz)``,
-    ``U (K, nu)``, parameters ``p``, ``output`` (which rows are user output points)."""
+    ``U (K, nu)``, parameters ``p``, ``output`` (which rows are user output points), ``check``
+    (which rows are the segment's check points, its start and end: they depend on the segment
+    only, so a monitor that looks at them alone acts the same on every output grid)."""
 
     t: np.ndarray
     X: np.ndarray
@@ -117,11 +120,16 @@ class Segment:
     output: np.ndarray
     system: System
     driver: Driver
+    check: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.check is None:
+            self.check = np.ones(self.t.size, bool)
 
     def tail(self, i: int) -> Segment:
         """The rows from ``i`` on (row ``i`` becomes the start)."""
         return Segment(self.t[i:], self.X[i:], self.Z[i:], self.U[i:], self.p, self.output[i:],
-                       self.system, self.driver)
+                       self.system, self.driver, self.check[i:])
 
 
 @dataclass
@@ -376,24 +384,28 @@ class Driver:
         pts = [np.array([t]), outs]
         if outs.size == 0 or outs[-1] < tb:
             pts.append(np.array([tb]))
-        if True:
-            n = self.checks
-            dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
-            if dts:
-                n = max(n, int(math.ceil((tb - t) / min(dts))))
-            n = min(n, 20000)
-            pts.append(np.linspace(t, tb, n + 1)[1:-1])
+        n = self.checks
+        dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
+        if dts:
+            n = max(n, int(math.ceil((tb - t) / min(dts))))
+        n = min(n, 20000)
+        chk = np.linspace(t, tb, n + 1)
+        chk[0], chk[-1] = t, tb
+        pts.append(chk[1:-1])
         grid = np.unique(np.concatenate(pts))
-        # drop check points closer than 1e-9 of the segment to an output point
         is_out = np.isin(grid, outs)
-        keep = np.ones(grid.size, bool)
+        is_chk = np.isin(grid, chk)
+        # a check point closer than 1e-9 of the segment after an output point: dropped, the
+        # output row stands for it (check rows depend only on the segment, not on the grid)
         if grid.size > 2:
             eps = 1e-9 * (tb - t)
             d_prev = np.diff(grid, prepend=-np.inf)
-            keep = ~((d_prev < eps) & ~is_out)
-            keep[0] = True
-        grid, is_out = grid[keep], is_out[keep]
-        return grid, is_out, j
+            drop = (d_prev < eps) & ~is_out
+            drop[0] = False
+            is_chk[np.nonzero(drop)[0] - 1] = True
+            keep = ~drop
+            grid, is_out, is_chk = grid[keep], is_out[keep], is_chk[keep]
+        return grid, is_out, is_chk, j
 
     def run(self) -> DriverResult:
         """Integrate over the whole grid; returns a :class:`DriverResult`."""
@@ -405,36 +417,43 @@ class Driver:
         result.parts.append(cur)
         states = [m.init(self, t, x, z) for m in self.monitors]
         k = 1
-        L = self.span if not self.monitors else self.span / 16
+        L = self.span if not self.monitors else self.span / 4
         bar = Progress(self.progress, tg[0], tg[-1], self.label)
         w0 = time.perf_counter()
         last_fail_t = None
+        fails = 0
         same_time_events = 0
         try:
             while k < n:
                 tb = t + L
                 if tb >= tg[-1] - 1e-12 * max(1.0, abs(tg[-1])) or (tg[-1] - tb) < 0.05 * L:
                     tb = float(tg[-1])
-                grid, is_out, j = self._grid(t, tb, k)
+                grid, is_out, is_chk, j = self._grid(t, tb, k)
                 self.stats["segments"] += 1
                 try:
                     X, Z = self._attempt(system, grid, x, z, first=(t == tg[0]))
                 except IntegrationFailure as exc:
+                    fails = fails + 1 if last_fail_t == t else 1
                     act = None
-                    for mi, m in enumerate(self.monitors):
-                        act, states[mi] = m.rescue(self, t, x, z, system, exc, states[mi])
-                        if act is not None:
-                            break
-                    if act is not None and last_fail_t != t:
-                        last_fail_t = t
+                    if fails == 1:
+                        for mi, m in enumerate(self.monitors):
+                            act, states[mi] = m.rescue(self, t, x, z, system, exc, states[mi])
+                            if act is not None:
+                                break
+                    last_fail_t = t
+                    if act is not None:
                         system, x, z, cur = self._apply(act, system, t, x, z, result, cur)
                         L = max(L / 4, 1e-6 * self.span)
                         continue
+                    ahead = exc.t > t + 1e-9 * max(1.0, abs(t), self.span)
+                    if self.monitors and fails <= 4 and ahead:
+                        # integrate up to half-way to the failure: the monitors look at that
+                        # part (a degrading pivot is seen before IDAS breaks down on it)
+                        L = 0.5 * (exc.t - t)
+                        continue
                     ok = grid[grid < exc.t - 1e-9 * max(1.0, abs(exc.t))]
-                    if ok.size >= 2 and last_fail_t != t:
-                        # integrate up to the last grid point before the failure, then go on
-                        last_fail_t = t
-                        L = float(ok[-1] - t)
+                    if not self.monitors and fails == 1 and ok.size >= 2:
+                        L = float(ok[-1] - t)  # keep the grid points before the failure
                         continue
                     partial = result.trajectory()
                     raise SimulationError(
@@ -443,14 +462,17 @@ class Driver:
                         t=float(exc.t), trajectory=partial,
                     ) from None
                 last_fail_t = None
-                U = system.sig.values(grid)
-                seg = Segment(grid, X, Z, U, self.pv, is_out, system, self)
+                # inputs on the rows only for the monitors (a plain run does not need them)
+                U = system.sig.values(grid) if self.monitors else np.zeros((grid.size, 0))
+                seg = Segment(grid, X, Z, U, self.pv, is_out, system, self, is_chk)
                 fired = self._earliest(seg, states)
                 if fired is None:
                     self._record(cur, seg, len(grid) - 1, inclusive=True)
                     for mi, m in enumerate(self.monitors):
                         states[mi] = m.accept(seg, len(grid) - 1, states[mi])
                     t, x, z = float(grid[-1]), X[-1].copy(), Z[-1].copy()
+                    if t < tg[-1]:
+                        z = self.consistent(system, t, x, z)
                     k = j
                     bar.update(t)
                     if t < tg[-1]:
@@ -463,7 +485,7 @@ class Driver:
                                     result.events.append((t, act.label))
                                 system, x, z, cur = self._apply(act, system, t, x, z, result,
                                                                 cur)
-                    L = self._next_length(states, 2.0 * L)
+                    L = self._next_length(states, 4.0 * L)
                     continue
                 mi, f, act = fired
                 te = float(f.t)
@@ -525,6 +547,9 @@ class Driver:
             _, mi = min(live)
             f = cands[mi]
             m = self.monitors[mi]
+            # IDAS's interpolated algebraic values satisfy alg = 0 only to the tolerance: made
+            # consistent before anyone acts on them (a re-selection turns them into states)
+            f.z = self.consistent(seg.system, float(f.t), f.x, f.z)
             act, states[mi] = m.act(f, self, states[mi])
             if not act.ignore:
                 if f.index >= 0:
@@ -540,14 +565,12 @@ class Driver:
 
     def _record(self, cur, seg: Segment, upto: int, inclusive: bool, before: float | None = None):
         """Keep the output rows of ``seg`` up to row ``upto`` (rows before ``before`` only)."""
-        for i in range(1, upto + 1):
-            if not seg.output[i]:
-                continue
-            if before is not None and seg.t[i] >= before:
-                continue
-            cur[1].append(float(seg.t[i]))
-            cur[2].append(seg.X[i].copy())
-            cur[3].append(seg.Z[i].copy())
+        sel = np.nonzero(seg.output[1: upto + 1])[0] + 1
+        if before is not None:
+            sel = sel[seg.t[sel] < before]
+        cur[1].extend(seg.t[sel].tolist())
+        cur[2].extend(seg.X[sel])  # row views of arrays no one writes to
+        cur[3].extend(seg.Z[sel])
 
     def _apply(self, act: Action, system: System, t: float, x, z, result: DriverResult, cur):
         x = np.asarray(act.x if act.x is not None else x, dtype=float).ravel().copy()

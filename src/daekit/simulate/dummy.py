@@ -23,14 +23,64 @@ from __future__ import annotations
 
 import math
 
+import casadi as ca
 import numpy as np
 
 from .driver import Action, Driver, Firing, Monitor
 from .inputs import InputSignal
-from .system import System, system_for
+from .system import System, fast_call, system_for
 from .trajectory import Trajectory
 
 __all__ = ["PivotMonitor", "simulate_dummy"]
+
+
+def conditions(rr, T, X, Z, U, p) -> np.ndarray:
+    """:func:`daekit.reduction.selection_condition` at many rows at once (one mapped CasADi
+    call for the stage blocks, batched SVDs): ``inf`` where a block is singular."""
+    T = np.asarray(T, dtype=float).ravel()
+    n = T.size
+    if n == 0:
+        return np.zeros(0)
+    cache = rr.__dict__.setdefault("_daekit_condition", {})
+    if "fun" not in cache:
+        syms = [ca.SX.sym(k, v.numel()) for k, v in (("t", rr.t), ("x", rr.x), ("z", rr.z),
+                                                    ("u", rr.u), ("p", rr.p))]
+        J = rr.info["selection_jacobian"](*syms)
+        blocks = [(ca.densify(J[list(map(int, R)), list(map(int, C))]), np.asarray(cols, int))
+                  for R, C, cols in rr.info["selection_blocks"] if len(R)]
+        cache["fun"] = ca.Function("blocks", syms, [b for b, _ in blocks] or [ca.SX(0, 1)])
+        cache["cols"] = [c for _, c in blocks]
+        cache["shapes"] = [b.shape for b, _ in blocks]
+        cache["maps"] = {}
+    F, cols, shapes = cache["fun"], cache["cols"], cache["shapes"]
+    if not cols:
+        return np.ones(n)
+    m = n if n <= 64 else 1 << (n - 1).bit_length()
+    if m not in cache["maps"]:
+        cache["maps"][m] = F.map(m)
+    Fm = cache["maps"][m]
+
+    def pad(A):
+        A = np.asarray(A, dtype=float).reshape(n, -1)
+        return A if m == n else np.concatenate([A, np.repeat(A[-1:], m - n, axis=0)], axis=0)
+
+    args = dict(zip(Fm.name_in(), [pad(T), pad(X), pad(Z), pad(U),
+                                   np.repeat(np.asarray(p, float).reshape(1, -1), m, axis=0)],
+                    strict=True))
+    outs = {Fm.name_out(i): (m, sh[1], sh[0]) for i, sh in enumerate(shapes)}
+    res = fast_call(Fm, args, outs)
+    worst = np.ones(n)
+    for i, c in enumerate(cols):
+        A = np.transpose(res[Fm.name_out(i)], (0, 2, 1))[:n]  # (n, rows, cols)
+        ok = np.all(np.isfinite(A), axis=(1, 2))
+        A = np.where(ok[:, None, None], A, 0.0)
+        smax = np.linalg.svd(A, compute_uv=False)[:, 0]
+        smin = np.linalg.svd(A[:, :, c], compute_uv=False)[:, -1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cond = np.where(smin > 0, smax / smin, np.inf)
+        cond[~ok] = np.inf
+        worst = np.maximum(worst, cond)
+    return worst
 
 
 class PivotMonitor(Monitor):
@@ -85,17 +135,18 @@ class PivotMonitor(Monitor):
         lim = 1.0 / self._limit(rr)
         qp = state.get("q")
         tp = state.get("tq", -math.inf)
-        gap = 0.5 * (self.check_dt or 0.0)
-        last = seg.t.size - 1
-        for j in range(1, seg.t.size):
-            if seg.t[j] - tp < gap and j < last:
-                continue  # rows closer than half the check spacing: skip (cost)
-            q = 1.0 / self._cond(rr, seg.t[j], seg.X[j], seg.Z[j], seg.U[j], seg.p)
-            if q < lim or (qp is not None and 2.0 * q - qp < lim):
-                state["q_fire"] = q
-                return Firing(float(seg.t[j]), seg.X[j], seg.Z[j], index=j)
-            qp, tp = q, float(seg.t[j])
-        state["q_seg"] = (qp, tp)
+        rows = [j for j in range(1, seg.t.size) if seg.check[j]]  # one batched evaluation
+        rows = np.asarray(rows, dtype=int)
+        q = 1.0 / conditions(rr, seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p)
+        prev = np.concatenate([[qp if qp is not None else np.nan], q[:-1]])
+        with np.errstate(invalid="ignore"):
+            bad = (q < lim) | (2.0 * q - prev < lim)
+        hit = np.nonzero(bad)[0]
+        if hit.size:
+            j = int(rows[hit[0]])
+            state["q_fire"] = float(q[hit[0]])
+            return Firing(float(seg.t[j]), seg.X[j], seg.Z[j], index=j)
+        state["q_seg"] = (float(q[-1]), float(seg.t[rows[-1]])) if rows.size else (qp, tp)
         return None
 
     def accept(self, seg, upto, state):
@@ -114,7 +165,9 @@ class PivotMonitor(Monitor):
             if key == tuple(cur.x_names):
                 continue
             xa, za = map_values(cur, sy.r, x, z)
-            if self._cond(sy.r, t, xa, za, u, self.pv) < 0.5 * self._limit(sy.r):
+            c = float(conditions(sy.r, [t], xa[None, :], za[None, :], np.asarray(u)[None, :],
+                                 self.pv)[0])
+            if c < 0.5 * self._limit(sy.r):
                 new = sy.r
                 break
         if new is None:

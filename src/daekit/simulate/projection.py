@@ -28,11 +28,12 @@ import math
 
 import casadi as ca
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import SimulationError
-from .driver import Action, Firing, Monitor
-from .system import fast_call, to_scipy
+from .driver import Action, Firing, Monitor, Segment
+from .system import fast_call
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
 
@@ -93,6 +94,8 @@ class Projector:
         self.weights = np.ones(self.nx) if weights is None else np.asarray(weights, float)
         self.rtol = self.atol = None
         self.stats = {"projections": 0, "projection_iterations": 0}
+        self._ksp = None
+        self._lu = None
 
     def set_tolerances(self, rtol: float, atol: float) -> None:
         """Weight ``x_i`` by ``1 / (atol + rtol |x_i|)^2`` at the point projected."""
@@ -104,7 +107,31 @@ class Projector:
         wx = 1.0 / (self.atol + self.rtol * np.abs(x)) ** 2
         return wx / np.max(wx, initial=1.0)
 
-    def __call__(self, t, x, z, u, p, tol: float = 1e-13, max_iter: int = 20):
+    def _h(self, t, w, u, p) -> np.ndarray:
+        return np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
+
+    def _factor(self, t, w, u, p, dmet):
+        """Sparse LU of the KKT matrix at ``w`` (nonzeros straight into NumPy)."""
+        F = self.kkt
+        if self._ksp is None:
+            sp_ = F.sparsity_out(1)
+            colind, row = sp_.get_ccs()
+            self._ksp = (np.asarray(row), np.asarray(colind), sp_.shape)
+        row, colind, shape = self._ksp
+        for reg in (0.0, 1e-12, 1e-8):
+            out = fast_call(F, dict(zip(F.name_in(), [np.atleast_1d(float(t)), w, u, p, dmet,
+                                                      np.atleast_1d(reg)], strict=True)),
+                            {F.name_out(1): (F.nnz_out(1),)})
+            K = sp.csc_matrix((out[F.name_out(1)], row, colind), shape=shape)
+            try:
+                with np.errstate(all="ignore"):
+                    return spla.splu(K)
+            except RuntimeError:
+                continue
+        return None
+
+    def __call__(self, t, x, z, u, p, tol: float = 1e-13, max_iter: int = 20,
+                 reuse: bool = False):
         """Return ``(x, z, max |dx|)``; raises :class:`SimulationError` if it cannot converge."""
         w = np.concatenate([np.asarray(x, float).ravel(), np.asarray(z, float).ravel()])
         w0 = w.copy()
@@ -113,34 +140,26 @@ class Projector:
         dmet = self._metric(w[: self.nx])
         res = np.inf
         n = w.size
-        lu = None
-        for it in range(max_iter):
-            if lu is None or it % 3 == 0:  # simplified Newton: refactor every third iteration
-                lu = None
-                for reg in (0.0, 1e-12, 1e-8):
-                    hv, K = self.kkt(t, w, u, p, dmet, reg)
-                    try:
-                        with np.errstate(all="ignore"):
-                            lu = spla.splu(to_scipy(K))
-                        break
-                    except RuntimeError:
-                        continue
-                hv = np.asarray(hv, dtype=float).ravel()
-            else:
-                hv = np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
+        lu = self._lu if reuse else None  # simplified Newton: an LU from a nearby point
+        last = np.inf
+        for _ in range(max_iter):
+            hv = self._h(t, w, u, p)
             res = float(np.max(np.abs(hv), initial=0.0))
             if not np.isfinite(res) or res <= tol * (1.0 + float(np.max(np.abs(w), initial=0.0))):
                 break
-            if lu is None:
-                break
+            if lu is None or res > 0.25 * last:  # (re)factor when convergence is slow
+                lu = self._factor(t, w, u, p, dmet)
+                if lu is None:
+                    break
+            last = res
             sol = lu.solve(np.concatenate([np.zeros(n), -hv]))
             if not np.all(np.isfinite(sol)):
                 break
             w = w + sol[:n]
             self.stats["projection_iterations"] += 1
         else:
-            hv = np.asarray(self.fun(t, w, u, p), dtype=float).ravel()
-            res = float(np.max(np.abs(hv), initial=0.0))
+            res = float(np.max(np.abs(self._h(t, w, u, p)), initial=0.0))
+        self._lu = lu
         if not np.isfinite(res) or res > 1e-8 * (1.0 + float(np.max(np.abs(w), initial=0.0))):
             raise SimulationError(
                 f"projection onto the invariants failed at t = {t:g} (residual {res:.3g}); the "
@@ -168,7 +187,7 @@ class Projector:
         if n + nh > 96:
             for i in range(N):
                 try:
-                    X[i], Z[i], _ = self(T[i], X[i], Z[i], U[i], p)
+                    X[i], Z[i], _ = self(T[i], X[i], Z[i], U[i], p, reuse=i > 0)
                 except SimulationError:
                     pass
                 self.stats["projections"] -= 1  # output projections are not counted
@@ -230,6 +249,12 @@ class Projector:
         return W[:, :nx], W[:, nx:]
 
 
+def _rows(seg, rows):
+    """The segment restricted to some rows."""
+    return Segment(seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p, seg.output[rows],
+                   seg.system, seg.driver, seg.check[rows])
+
+
 class DriftMonitor(Monitor):
     """Fires when ``max |invariant|`` exceeds ``tol``; acts by projecting (see the module doc).
 
@@ -261,16 +286,18 @@ class DriftMonitor(Monitor):
         return np.max(np.abs(inv), axis=1, initial=0.0)
 
     def check(self, seg, state):
-        d = self._drift(seg)
+        rows = np.nonzero(seg.check)[0]  # check rows only: the same on every output grid
+        d = self._drift(seg.tail(0) if rows.size == seg.t.size else _rows(seg, rows))
         bad = np.nonzero(d[1:] > self.tol)[0]
         if bad.size == 0:
             self.max_drift = max(self.max_drift, float(np.max(d, initial=0.0)))
             self._end = (float(seg.t[0]), float(seg.t[-1]), float(d[-1]))
             return None
-        i = int(bad[0])  # rows 0..i within the tolerance, row i + 1 beyond it
-        self.max_drift = max(self.max_drift, float(np.max(d[: i + 1], initial=0.0)))
-        self._cross = float(seg.t[i + 1])
-        if i > 0:
+        b = int(bad[0])  # check rows 0..b within the tolerance, row b + 1 beyond it
+        i, i1 = int(rows[b]), int(rows[b + 1])
+        self.max_drift = max(self.max_drift, float(np.max(d[: b + 1], initial=0.0)))
+        self._cross = float(seg.t[i1])
+        if b > 0:
             return Firing(float(seg.t[i]), seg.X[i], seg.Z[i], index=i)
         ev = seg.system.evaluator
         half = 0.5 * self.tol
@@ -282,7 +309,8 @@ class DriftMonitor(Monitor):
 
         if g(seg.t[0], seg.X[0], seg.Z[0], seg.U[0]) >= 0:  # not even the start: project it
             return Firing(float(seg.t[0]), seg.X[0], seg.Z[0], index=0)
-        t, x, z = seg.driver.locate(seg, 0, g, tol=1e-6 * (seg.t[1] - seg.t[0]))
+        sub = _rows(seg, np.array([0, i1]))
+        t, x, z = seg.driver.locate(sub, 0, g, tol=1e-6 * (seg.t[i1] - seg.t[0]))
         return Firing(t, x, z)
 
     def _project(self, driver, t, x, z):

@@ -105,7 +105,6 @@ class Trajectory:
         inv = np.asarray(invariants, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))
         self.invariants = inv
         self.stats = dict(stats or {})
-        self.events = []
 
     # ------------------------------------------------------------------ access
     def __getitem__(self, name: str) -> np.ndarray:

@@ -726,7 +726,14 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         first_row_is_post = False
         # --- location: Illinois on the earliest crossing, re-integrating from row j-1
         # re-integrate from one check point further back (never over a tiny interval)
-        ja = j - 2 if (j >= 2 and not dummy) else j - 1
+        # (a row right at the crossing may be degenerate: with dummy derivatives the point
+        # where a selection is singular; one check point further back is a clean start)
+        ja = j - 2 if j >= 2 else j - 1
+        # only from a row of this segment's own grid: a remedy may add rows of its own (a
+        # re-selection point), whose values are not a clean restart point
+        own = set(np.asarray(pts, float).tolist())
+        while ja > 0 and float(seg.t[ja]) not in own:
+            ja -= 1
         ta = float(seg.t[ja])
         row_a = _row(seg, ja)
         r_loc = r_cur
@@ -752,13 +759,10 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                      lead=lead):
             stats["event_locations"] += 1
             try:
-                try:
-                    tr = run(r_loc, np.array([ta, tt]), init_a, branches, None)
-                except SimulationError:
-                    if not dummy:
-                        raise
-                    # the selection made at ta degraded before tt: let it be re-selected
-                    tr = run(r_loc, np.array([ta, tt]), init_a, branches, "dummy_derivatives")
+                # with dummy derivatives through the remedy itself: a selection made at ta
+                # may degrade before tt, and a degrading selection loses accuracy silently
+                tr = run(r_loc, np.array([ta, tt]), init_a, branches,
+                         "dummy_derivatives" if dummy else None)
             except SimulationError as exc:
                 raise SimulationError(
                     f"simulate: locating the event {mon.names[lead]!r} in [{ta:.10g}, {tb:.10g}] "

@@ -134,7 +134,7 @@ def simulate(
     poles=(-1.0, -1.0),
     drift_tol: float | None = None,
     monitors: Sequence = (),
-    project_output: bool = True,
+    project_output: bool | None = None,
     **options,
 ) -> Trajectory:
     """Simulate a reduced (index-1) DAE and return its :class:`Trajectory`.
@@ -178,11 +178,13 @@ def simulate(
     drift_tol : float, optional
         For ``"projection"``: the largest ``|invariant|`` tolerated; default
         :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``.
-    project_output : bool
+    project_output : bool, optional
         For ``"projection"``: also project the recorded output points onto the manifold
         (without touching the integration, which projects only when ``drift_tol`` is crossed),
-        so the returned values satisfy the invariants to rounding (default True;
-        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had).
+        so the returned values satisfy the invariants to rounding. Default: where it is cheap
+        (``nx + nz + invariants <= 96``: batched dense Gauss--Newton); on larger systems the
+        recorded points keep the integration's drift, below ``drift_tol``.
+        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had.
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
     **options
@@ -303,6 +305,8 @@ def simulate(
         res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
                      label="projection").run()
         nproj = proj.stats["projections"]
+        if project_output is None:
+            project_output = proj.nx + proj.nz + proj.nh <= 96
         if project_output:
             # the recorded rows onto the manifold too (read-only: the integration is not
             # touched), so the results satisfy the invariants to rounding

@@ -195,6 +195,7 @@ class Model:
         self.equations: list[Equation] = []
         # element hash -> (variable, element index, derivative order)
         self._lookup: dict[int, tuple[Variable, int, int]] = {}
+        self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
         self._cache: dict[str, object] = {}
 
     # ------------------------------------------------------------------ declarations
@@ -209,13 +210,27 @@ class Model:
         if not isinstance(size, (int, np.integer)) or size < 1:
             raise ModelError(f"model {self.name!r}: variable {name!r} needs a size >= 1, got {size!r}")
         size = int(size)
-        sym = ca.vertcat(*[ca.SX.sym(element_name(name, size, i)) for i in range(size)])
+        elems = [ca.SX.sym(element_name(name, size, i)) for i in range(size)]
+        sym = ca.vertcat(*elems)
         var = Variable(name, kind, size, sym, default)
         self.variables[name] = var
-        for i in range(size):
-            self._lookup[sym[i].element_hash()] = (var, i, 0)
+        for i, e in enumerate(elems):
+            self._lookup[e.element_hash()] = (var, i, 0)
+        self._elements[name, 0] = elems
         self._cache.clear()
         return sym
+
+    def _order_elements(self, var: Variable, order: int) -> list:
+        """The scalar symbols of ``var``'s order-``order`` derivative (created on first use and
+        registered for :meth:`lookup`)."""
+        key = (var.name, order)
+        elems = self._elements.get(key)
+        if elems is None:
+            elems = ca.vertsplit(var.der(order)) if var.size > 1 else [var.der(order)]
+            for i, e in enumerate(elems):
+                self._lookup.setdefault(e.element_hash(), (var, i, order))
+            self._elements[key] = elems
+        return elems
 
     def state(self, name: str, size: int = 1) -> ca.SX:
         """Declare an unknown whose time derivative appears in the equations."""
@@ -265,8 +280,8 @@ class Model:
                 f"m.state/m.variable/m.control), got {type(x).__name__}"
             )
         out = []
-        for i in range(x.numel()):
-            e = x[i]
+        xs = ca.vertsplit(ca.vec(x)) if x.numel() > 1 else [x]
+        for e in xs:
             hit = self._lookup.get(e.element_hash()) if e.is_symbolic() else None
             if hit is None:
                 what = str(e) if e.numel() == 1 else "an expression"
@@ -291,10 +306,7 @@ class Model:
                     f"model {self.name!r}: der({var.name}) is the derivative of a parameter "
                     "(a constant); use m.state or m.control for a time-varying quantity"
                 )
-            new = var.der(order + int(k))
-            el = new[idx]
-            self._lookup.setdefault(el.element_hash(), (var, idx, order + int(k)))
-            out.append(el)
+            out.append(self._order_elements(var, order + int(k))[idx])
         self._cache.clear()
         return ca.vertcat(*out) if len(out) != 1 else out[0]
 
@@ -399,7 +411,15 @@ class Model:
 
     @property
     def equation_names(self) -> list[str]:
-        return [e.element(i) for e in self.equations for i in range(e.size)]
+        """Element names of the equations, ``"rod"``, ``"newton[0]"``, ... (cached; do not
+        mutate)."""
+        if "equation_names" not in self._cache:
+            out: list[str] = []
+            for e in self.equations:
+                k = e.size
+                out += [e.name] if k == 1 else [f"{e.name}[{i}]" for i in range(k)]
+            self._cache["equation_names"] = out
+        return self._cache["equation_names"]
 
     @property
     def residual(self) -> ca.SX:
@@ -519,7 +539,8 @@ class Model:
             raise ModelError(f"model {self.name!r} has no variable {base!r} (known: {known})")
         if idx is not None and idx >= var.size:
             raise ModelError(
-                f"model {self.name!r}: {name!r} is out of range; {base!r} has {var.size} element(s)"
+                f"model {self.name!r}: {name!r} is out of range; {base!r} has "
+                f"{count(var.size, 'element')}"
             )
         if order > 0 and var.kind == "parameter":
             raise ModelError(f"model {self.name!r}: {name!r} is the derivative of a parameter")
@@ -672,8 +693,18 @@ def _zero_entries(sx: ca.SX) -> list[int]:
     present = np.zeros(n, dtype=bool)
     present[np.asarray(row, dtype=np.int64)] = True
     out = set(np.nonzero(~present)[0].tolist())
-    nz = sx.nonzeros()
-    out.update(int(r) for r, e in zip(row, nz, strict=True) if e.is_zero())
+    nz = sx.nz[:]  # whole vector: the nonzeros that depend on no symbol are constants
+    if nz.numel():
+        syms = ca.symvar(nz)
+        const = np.ones(nz.numel(), dtype=bool)
+        if syms:
+            dep, _ = ca.jacobian_sparsity(nz, ca.vertcat(*syms)).get_triplet()
+            const[np.asarray(dep, dtype=np.int64)] = False
+        k = np.nonzero(const)[0]
+        if k.size:
+            vals = np.asarray(ca.evalf(nz[k.tolist()]), dtype=float).ravel()
+            rows = np.asarray(row, dtype=np.int64)
+            out.update(rows[k[vals == 0.0]].tolist())
     return sorted(out)
 
 

@@ -229,7 +229,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
              ) -> list[RemedyResult]:
     """Run the tour; print the story and the table, write figures into ``out``.
 
-    ``gifs=True`` also writes the GIF animations (a few seconds more); ``animations`` is the
+    ``gifs=True`` also writes the GIF animations (10-20 s of CPU time more); ``animations`` is the
     older name of the same switch (when given, it wins). ``ocp=False`` skips the optimal
     control section. Returns the table rows (with their trajectories).
 
@@ -438,19 +438,27 @@ def _animations(out: Path, reduced, init, prow: list, drow: list, t_end: float,
         animate.animate_delta_robot(trd.t[k], trd["alpha"][k], trd["p"][k], dd["r"], dd["a"],
                                     dd["L"], out / "delta_robot.gif", fps=20, real_time=True,
                                     title="delta robot, projection")
-    # Drift made visible: a loose tolerance and a long span, nothing scaled up.
-    tol, drift_span, fps = 3e-4, min(t_end, 30.0), 10
+    # Drift made visible: a loose tolerance and a long span, nothing scaled up. The drift of a
+    # run is an accumulation of local errors (it wanders, and it changes with the smallest change
+    # of the formulation), so the tolerance is the tightest of a few loose ones at which the
+    # rod's length leaves L = 1 m by 10 % within the span (the loosest if none does); the title
+    # says which.
+    drift_span, fps = min(t_end, 30.0), 10
     t = np.linspace(0.0, drift_span, int(round(20 * drift_span)) + 1)  # shown at 10 fps
-    runs = {}
+    candidates = (3e-4, 1e-3, 3e-3, 1e-2)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for label, stab in (("no stabilization", None), ("projection", "projection")):
-            runs[label] = dk.simulate(reduced, t, init, rtol=tol, atol=tol,
-                                      stabilization=stab)["p"]
+        for tol in candidates:
+            free = dk.simulate(reduced, t, init, rtol=tol, atol=tol)["p"]
+            if np.max(np.abs(np.linalg.norm(free, axis=1) - 1.0)) >= 0.1:
+                break
+        kept = dk.simulate(reduced, t, init, rtol=tol, atol=tol, stabilization="projection")["p"]
+    runs = {"no stabilization": free, "projection": kept}
     animate.animate_drift(
         t, runs, 1.0, out / "pendulum3d_drift.gif", fps=fps, real_time=True,
         colors={lab: remedy_color(lab) for lab in runs}, pixels=480,
-        title=f"3D pendulum, index-1 form at a loose tolerance rtol = atol = {tol:.0e}, "
-              f"{drift_span:g} s in real time, nothing exaggerated:\nwithout stabilization the "
-              "rod's length drifts away from L = 1 m; with projection it stays 1 m")
+        title=f"3D pendulum, index-1 form at the loose tolerance rtol = atol = {tol:.0e} (the "
+              f"tightest of {', '.join(f'{c:.0e}' for c in candidates)} with a visible drift),\n"
+              f"{drift_span:g} s in real time, nothing exaggerated: without stabilization the "
+              "rod's length drifts from L = 1 m; with projection it stays 1 m")
     done(time.perf_counter() - t0)

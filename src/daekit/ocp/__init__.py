@@ -4,10 +4,17 @@ The model is reduced to index 1 (or given as a :class:`~daekit.reduced.ReducedDA
 optimal control problem is transcribed (direct collocation with Radau IIA by default, or
 multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
 (invariants) are imposed at the initial time only, and boundary conditions that are redundant
-with them (full periodicity of a constrained mechanism) are detected and dropped (a dropped
-condition the solution turns out to violate is imposed in a second solve; conditions that
-contradict each other are named instead and nothing is solved); the solution's
-:attr:`OCPSolution.report` says what was done.
+with them (full periodicity of a constrained mechanism) are detected and dropped where the
+rank decision is valid (a dropped condition the solution turns out to violate is imposed in a
+second solve); IPOPT always runs unless the conditions are proven contradictory (then they are
+named and nothing is solved); the solution's :attr:`OCPSolution.report` says what was done.
+
+Layout: :class:`OCP` is the statement builder; :meth:`OCP.compile` freezes it into a
+:class:`~daekit.ocp.compiled.Problem`, which :mod:`~daekit.ocp.guess`,
+:mod:`~daekit.ocp.boundary` (which conditions to impose), :mod:`~daekit.ocp.collocation` and
+:mod:`~daekit.ocp.shooting` (sharing :mod:`~daekit.ocp.transcription`), :mod:`~daekit.ocp.run`
+(one IPOPT run), :mod:`~daekit.ocp.resolve` (the second solve) and :mod:`~daekit.ocp.report`
+read; :mod:`~daekit.ocp.solution` builds the :class:`OCPSolution`.
 
 Example: swing a planar pendulum (index 3 in Cartesian coordinates: unit mass and rod, a
 tangential force ``u``) from rest at the bottom to rest at 30 degrees in 2 s with the least
@@ -58,6 +65,7 @@ import numpy as np
 
 from ..errors import OCPError
 from ..reduced import ReducedDAE
+from ..wording import count
 from .compiled import Problem, compile_problem
 from .consistency import BoundaryAnalysis
 from .problem import Augmented, augment
@@ -97,7 +105,7 @@ def _vec(val, n: int, what: str) -> np.ndarray:
     if arr.size == 1:
         arr = np.full(n, float(arr[0]))
     if arr.size != n:
-        raise OCPError(f"{what}: expected {n} value(s), got {arr.size}")
+        raise OCPError(f"{what}: expected {count(n, 'value')}, got {arr.size}")
     return arr
 
 
@@ -462,8 +470,26 @@ class OCP:
         ba = analyze(prob, g)
         self._last_boundary = ba
         sol = solve_once(prob, g, ba, redundancy, check, t_start)
+        if (not sol.success and redundancy == "drop" and ba.selectors and not ba.proven
+                and sol.stats.get("boundary_selectors_imposed")):
+            # the branch inequalities can trap IPOPT when the guess lies on another branch:
+            # once more without them (the dropped conditions are then checked, and imposed by
+            # the re-solve if violated)
+            first = sol
+            sol = solve_once(prob, g, ba, redundancy, check, _time.perf_counter(),
+                             selectors=False)
+            retry = {"status": first.status, "iter_count": first.stats.get("iter_count")}
+        else:
+            retry = None
         if redundancy == "drop" and sol.success and ba.dropped:
             sol = resolve_violated(prob, sol, ba, check, make_guess)
+        if retry is not None:
+            sol.stats["first_with_branch_inequalities"] = retry
+            lines = sol.report.split("\n")
+            lines.insert(1, f"First run with the branch inequalities: {retry['status']} after "
+                            f"{retry['iter_count']} iterations (the guess lies on another "
+                            "branch); run again without them.")
+            sol.report = "\n".join(lines)
         if not sol.success and raise_on_failure:
             raise OCPError(sol.report)
         return sol

@@ -284,7 +284,8 @@ def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
             "where the imposed conditions hold there are other branches on which "
             + ", ".join(ba.labels[i] for i, _, _ in ba.selectors)
             + " do" + ("es" if len(ba.selectors) == 1 else "")
-            + " not hold (they select a branch, |c| up to "
-            + ", ".join(f"{2 * hi:.3g}" for _, _, hi in ba.selectors)
-            + " elsewhere): checked at the solution and imposed by a re-solve if violated"
+            + " not hold: kept as the inequalities |c| <= "
+            + ", ".join(f"{hi:.3g}" for _, _, hi in ba.selectors)
+            + " (half the distance to the nearest other branch), which exclude those branches,"
+            " are inactive at the solution and keep the constraint Jacobian regular"
         )

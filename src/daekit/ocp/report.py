@@ -116,7 +116,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
                 + (f" (the last {len(ba.pins)} in place of {_fmt_list(replaced)}: the point "
                    "they determine, see below)" if ba.pins else "")
                 + f". Dropped as implied by those and the invariants: {_fmt_list(dropped) or 'none'}"
-                + (f" (branch-selecting, checked at the solution: "
+                + (f" (branch-selecting ones kept as inequalities: "
                    f"{_fmt_list([ba.labels[i] for i in sorted(sel)])})" if sel else "")
                 + ("." if ba.proven else
                    "; the largest residual of these" + (" and the replaced ones" if ba.pins

@@ -185,12 +185,19 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
-    zpairs = [(j, int(d[j])) for j in range(n) if (j, int(d[j])) not in gone]
-    rows = [i for i in range(n) if i not in gone_eqs]
+    top_gone = np.zeros(n, dtype=bool)
+    for j, k in el.pairs:
+        if k == int(d[j]):
+            top_gone[j] = True
+    zpairs = list(zip(np.nonzero(~top_gone)[0].tolist(), d[~top_gone].tolist(), strict=True))
+    keep = np.ones(n, dtype=bool)
+    keep[np.asarray(el.equations, dtype=np.int64)] = False
+    rows = np.nonzero(keep)[0].tolist()
     alg = _top_equations(ex)
     if gone_eqs:
         alg = alg[rows]
-    alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in rows]
+    eq_names = ex.equation_names
+    alg_names = [derivative_name(eq_names[i], int(c[i])) for i in rows]
     inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
     r = _assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
     if el.pairs:
@@ -729,13 +736,21 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         return
     J = ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
+    small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
-        A = _to_scipy(f(t, x, z, u, p))
-        if not np.all(np.isfinite(A.data)):
-            continue
-        finite = True
-        bad = _singular_rows(A)
+        if small:
+            A = np.asarray(f(t, x, z, u, p).full(), dtype=float)
+            if not np.all(np.isfinite(A)):
+                continue
+            finite = True
+            bad = _dense_singular_rows(A, np.arange(r.nz))
+        else:
+            A = _to_scipy(f(t, x, z, u, p))
+            if not np.all(np.isfinite(A.data)):
+                continue
+            finite = True
+            bad = _singular_rows(A)
         if bad is None:
             r.info["index1_check"] = "passed"
             return

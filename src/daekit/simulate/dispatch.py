@@ -134,7 +134,7 @@ def simulate(
     poles=(-1.0, -1.0),
     drift_tol: float | None = None,
     monitors: Sequence = (),
-    project_output: bool = True,
+    project_output: bool | None = None,
     events: bool = True,
     **options,
 ) -> Trajectory:
@@ -179,11 +179,13 @@ def simulate(
     drift_tol : float, optional
         For ``"projection"``: the largest ``|invariant|`` tolerated; default
         :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``.
-    project_output : bool
+    project_output : bool, optional
         For ``"projection"``: also project the recorded output points onto the manifold
         (without touching the integration, which projects only when ``drift_tol`` is crossed),
-        so the returned values satisfy the invariants to rounding (default True;
-        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had).
+        so the returned values satisfy the invariants to rounding. Default: where it is cheap
+        (``nx + nz + invariants <= 96``: batched dense Gauss--Newton); on larger systems the
+        recorded points keep the integration's drift, below ``drift_tol``.
+        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had.
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
     events : bool
@@ -296,7 +298,12 @@ def simulate(
     if stabilization == "baumgarte":
         from ..reduction import baumgarte
 
-        r_int = baumgarte(r, poles=poles)
+        # made once per system and poles, kept on it (so is its integrator)
+        cache = r.__dict__.setdefault("_daekit_baumgarte", {})
+        key = repr(poles)
+        if key not in cache:
+            cache[key] = baumgarte(r, poles=poles)
+        r_int = cache[key]
     if r_int.info.get("index", 1) >= 2 and "suppress_algebraic" not in options:
         # an index-2 form (GGL): its algebraic unknowns are not controlled by the BDF error
         # test (the index-2 variables' errors do not converge at the order of the method),
@@ -320,7 +327,10 @@ def simulate(
 
         traj = simulate_dummy(r_int, tg, x0, z0, inputs, pv, rtol, atol, options, progress)
     elif stabilization == "projection":
-        proj = Projector(r_int)
+        proj = r_int.__dict__.get("_daekit_projector")  # built once per system, kept on it
+        if proj is None:
+            proj = r_int.__dict__["_daekit_projector"] = Projector(r_int)
+        proj.stats = {"projections": 0, "projection_iterations": 0}
         proj.set_tolerances(rtol, atol)
         tol = default_drift_tol(rtol, atol) if drift_tol is None else float(drift_tol)
         inv0 = system.evaluator.invariants(tg[:1], x0[None, :], z0[None, :], U[:1], pv)
@@ -330,6 +340,8 @@ def simulate(
         res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
                      label="projection").run()
         nproj = proj.stats["projections"]
+        if project_output is None:
+            project_output = proj.nx + proj.nz + proj.nh <= 96
         if project_output:
             # the recorded rows onto the manifold too (read-only: the integration is not
             # touched), so the results satisfy the invariants to rounding

@@ -445,7 +445,7 @@ def _zeno_message(events, zeno_count, zeno_window, max_events, span) -> str | No
 def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol, options,
                      dt_check, zeno_count, zeno_window, max_events, progress, wall0,
                      stabilization, seg_stab, inputs, params, drift_tol=None,
-                     project_output=True) -> Trajectory:
+                     project_output=None) -> Trajectory:
     """The remedies on the event-driven driver (none, Baumgarte, projection): ``simulate`` with
     the :class:`EventMonitor` among its monitors."""
     from .dispatch import simulate
@@ -523,7 +523,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                     atol=1e-8, poles=(-1.0, -1.0), event_spacing: float | None = None,
                     zeno_count: int = 10, zeno_window: float | None = None,
                     max_events: int = 10000, progress: bool = False, use_driver: bool = True,
-                    drift_tol: float | None = None, project_output: bool = True,
+                    drift_tol: float | None = None, project_output: bool | None = None,
                     **options) -> Trajectory:
     """Simulate ``r`` with its model's events and its switches (see the module docstring).
 

@@ -263,7 +263,7 @@ def simulate(
             traj = simulate_events(r, t, init, inputs=inputs, params=params,
                                    stabilization=stabilization, rtol=rtol, atol=atol,
                                    poles=poles, progress=progress, drift_tol=drift_tol,
-                                   project_output=project_output, **options)
+                                   project_output=project_output, run=simulate, **options)
             if notes:
                 traj.stats["reduced"] = notes[0]
             return traj

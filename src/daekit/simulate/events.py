@@ -70,7 +70,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import casadi as ca
 import numpy as np
@@ -445,10 +445,10 @@ def _zeno_message(events, zeno_count, zeno_window, max_events, span) -> str | No
 def _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol, options,
                      dt_check, zeno_count, zeno_window, max_events, progress, wall0,
                      stabilization, seg_stab, inputs, params, drift_tol=None,
-                     project_output=None) -> Trajectory:
+                     project_output=None, run=None) -> Trajectory:
     """The remedies on the event-driven driver (none, Baumgarte, projection): ``simulate`` with
-    the :class:`EventMonitor` among its monitors."""
-    from .dispatch import simulate
+    the :class:`EventMonitor` among its monitors (``run`` is that ``simulate``)."""
+    simulate = run
 
     t0 = float(tg[0])
     span = float(tg[-1] - tg[0])
@@ -524,8 +524,11 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
                     zeno_count: int = 10, zeno_window: float | None = None,
                     max_events: int = 10000, progress: bool = False, use_driver: bool = True,
                     drift_tol: float | None = None, project_output: bool | None = None,
-                    **options) -> Trajectory:
+                    run: Callable[..., Trajectory] | None = None, **options) -> Trajectory:
     """Simulate ``r`` with its model's events and its switches (see the module docstring).
+
+    ``run`` is the simulation of one segment without events (:func:`daekit.simulate`, which
+    passes itself: this module sits below the dispatcher and never imports it).
 
     Called by :func:`daekit.simulate` (same arguments); the extra keywords ``event_spacing``,
     ``zeno_count``, ``zeno_window`` and ``max_events`` may be passed to it.
@@ -543,8 +546,12 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     True
     """
     from ..reduction import baumgarte, reselect, selection_condition
-    from .dispatch import simulate
     from .inputs import InputSignal, resolve_params
+
+    if run is None:
+        raise TypeError("simulate_events needs run=, the simulation of one segment "
+                        "(daekit.simulate passes itself)")
+    simulate = run
 
     wall0 = time.perf_counter()
     tg = np.asarray(t, dtype=float).ravel()
@@ -600,7 +607,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
         return _simulate_driver(r_work, rf, found, mon, tg, row0, sig, pv_user, rtol, atol,
                                 options, dt_check, zeno_count, zeno_window, max_events,
                                 progress, wall0, stabilization, seg_stab, inputs, params,
-                                drift_tol, project_output)
+                                drift_tol, project_output, run=simulate)
     r_cur = rf
     if dummy:
         r_cur = r_work

@@ -16,6 +16,7 @@ Example
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -23,8 +24,9 @@ import numpy as np
 from ..errors import ModelError
 from ..model import NameNotFoundError, expand_name
 from ..wording import count
+from .storage import read_trajectory, save_trajectory
 
-__all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
+__all__ = ["Trajectory", "NameNotFoundError", "expand_name", "load_trajectory"]
 
 
 def _derivative_name(element: str) -> str:
@@ -235,8 +237,6 @@ class Trajectory:
         """Write this trajectory to ``path``, ``.parquet`` (pyarrow) or ``.npz`` (NumPy), a
         lossless documented format (:mod:`daekit.simulate.storage`); read it back with
         :func:`daekit.load_trajectory`. Returns the path written."""
-        from .storage import save_trajectory
-
         return save_trajectory(self, path)
 
     def plot(self, names: Iterable[str] | str | None = None, ax=None):
@@ -264,3 +264,18 @@ class Trajectory:
             f"{', ...' if len(self.names) > 8 else ''}; "
             f"{count(len(self.invariant_names), 'invariant')})"
         )
+
+
+def load_trajectory(path: str | os.PathLike) -> Trajectory:
+    """Read a trajectory written by :meth:`Trajectory.save` (``.parquet`` or ``.npz``; the
+    format is documented in :mod:`daekit.simulate.storage`).
+
+    Returns the :class:`Trajectory`, equal to the one saved (the same arrays bit for bit,
+    names, invariants, statistics and extra data such as events).
+    """
+    parts = read_trajectory(path)
+    traj = Trajectory(parts["t"], parts["values"], parts["invariants"], parts["invariant_names"],
+                      parts["stats"])
+    for k, v in parts["extra"].items():
+        setattr(traj, k, v)
+    return traj

@@ -67,6 +67,7 @@ from ..model import Model
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from .differentiate import derivative_name
+from .invariants import attach_declared, declared_condition, declared_dummy
 from .reduce import (
     _all_symbols,
     _assemble,
@@ -455,6 +456,8 @@ def dummy_derivatives(
     r.info["chains"] = []  # invariants are part of alg: nothing to stabilize
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
+    n_found = len(r.invariant_names)  # declared invariants (m.invariant): one dummy state each
+    declared_dummy(attach_declared(r, model, check=check, seed=seed), n_found, point, seed)
     r.info["selection_jacobian"] = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
     r.info["selection_blocks"] = blocks
     if check:
@@ -493,7 +496,7 @@ def selection_condition(r: ReducedDAE, x, z, u=None, p=None, t: float = 0.0) -> 
     except (TypeError, ValueError):
         raise ReductionError(f"selection_condition: t must be one number, got {t!r}") from None
     J = _to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
-    worst = 1.0
+    worst = declared_condition(r, t, x, z, u, p)
     for R, C, cols in r.info["selection_blocks"]:
         worst = max(worst, _block_condition(_dense(J, R, C), cols))
     return worst

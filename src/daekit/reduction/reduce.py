@@ -58,6 +58,7 @@ from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
+from .invariants import attach_declared
 
 __all__ = ["reduce_index", "check_index1"]
 
@@ -154,6 +155,7 @@ def reduce_index(
         {"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]}
         for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
+    attach_declared(r, model, check=check, seed=seed)  # m.invariant(...): checked, appended
     if check:
         check_index1(r, seed=seed)
     return r

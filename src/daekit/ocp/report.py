@@ -16,6 +16,34 @@ def _fmt_list(items: list[str], limit: int = 10) -> str:
     return ", ".join(items[:limit]) + f", ... ({len(items)} in all)"
 
 
+def _sign_notes(ocp, r) -> list[str]:
+    """Where final or periodic conditions fix every state of a declared invariant that is
+    even in them (a unit quaternion), the sign imposed decides the branch: say so."""
+    from ..reduction.invariants import even_declared
+
+    if not (r.info.get("declared_invariants")):
+        return []
+    a = ocp._aug
+    fixed: dict[str, set[str]] = {"final": set(), "periodic": set()}
+    for kind, _label, ex, val in ocp._bc_user:
+        if kind in fixed and not isinstance(val, tuple) and ex.numel() == 1:
+            w = a.which(ex)
+            if w is not None and w[0] == "x":
+                fixed[kind].add(a.x_names[w[1]])
+    out = []
+    for nm, states in even_declared(r).items():
+        for kind, got in fixed.items():
+            if set(states) <= got:
+                out.append(
+                    f"The {kind} conditions fix every component of {_fmt_list(states)}, and the "
+                    f"invariant {nm!r} is the same for their negatives: the sign imposed decides "
+                    "the branch (for a quaternion, q and -q are the same rotation, and the sign "
+                    f"decides which way round it turns); ocp.{kind}(..., up_to_sign=...) "
+                    "accepts either."
+                )
+    return out
+
+
 def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, guess, pre=()):
     """Return (report text, infeasibilities)."""
     a = ocp._aug
@@ -40,10 +68,13 @@ def diagnose(ocp, tr, ba, V, g, lbg, ubg, lbx, ubx, success, status, stats, gues
         f"{stats['n_constraints']} constraints. Initial guess: {guess.note}."
     )
     if a.inv_names:
+        declared = set(r.info.get("declared_invariants") or [])
+        shown = [f"{nm} (declared)" if nm in declared else nm for nm in a.inv_names]
         lines.append(
             "Invariants imposed at t = 0 only (exact dynamics keep them afterwards): "
-            f"{_fmt_list(a.inv_names)}."
+            f"{_fmt_list(shown)}."
         )
+        lines.extend(_sign_notes(ocp, r))
     if ba.labels:
         n = ba.n_conditions
         if ba.conflict:

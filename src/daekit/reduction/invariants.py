@@ -55,7 +55,7 @@ from ..model import expand_name
 from ..reduced import ReducedDAE
 
 __all__ = ["attach_declared", "check_declared", "declared_names", "baumgarte_declared",
-           "declared_dummy", "declared_condition"]
+           "declared_dummy", "declared_condition", "even_declared"]
 
 #: relative size of the derivative of a declared invariant, against the size of its terms,
 #: above which it is not an invariant
@@ -435,3 +435,43 @@ def declared_condition(r: ReducedDAE, t, x, z, u, p) -> float:
     smin = np.linalg.svd(sub, compute_uv=False)[-1] if sub.size else 0.0
     big = np.linalg.norm(G, 2)
     return float(big / smin) if smin > 0 else float("inf")
+
+
+def even_declared(r: ReducedDAE, seed: int = 0) -> dict[str, list[str]]:
+    """Declared invariants unchanged when all the states they involve change sign together
+    (``|q|^2 - 1`` under ``q -> -q``): ``{invariant: [state names]}``. Conditions that fix all
+    those states then fix a sign that the invariant leaves open (for a quaternion: which of
+    the two representations of the same rotation, hence which way round it turns).
+
+    >>> import daekit as dk
+    >>> even_declared(dk.reduce_index(dk.examples.rigid_body()))
+    {'unit': ['q[0]', 'q[1]', 'q[2]', 'q[3]']}
+    """
+    names = r.info.get("declared_invariants") or []
+    if not names:
+        return {}
+    n0 = len(r.invariant_names) - len(names)
+    rng = np.random.default_rng(seed + 3)
+    out: dict[str, list[str]] = {}
+    for k, nm in enumerate(names):
+        c = r.invariants[n0 + k]
+        if ca.depends_on(c, r.z) if r.nz else False:
+            continue
+        _, cols = ca.jacobian_sparsity(c, r.x).get_triplet()
+        cols = sorted(set(int(j) for j in cols))
+        if not cols:
+            continue
+        flip = np.ones(r.nx)
+        flip[cols] = -1.0
+        f = ca.Function("c", [r.t, r.x, r.u, r.p], [c])
+        even = True
+        for _ in range(2):
+            t, x, u = float(rng.uniform()), rng.uniform(0.2, 1.2, r.nx), rng.uniform(size=r.nu)
+            a = float(f(t, x, u, r.p_values))
+            b = float(f(t, flip * x, u, r.p_values))
+            if not abs(a - b) <= 1e-12 * max(1.0, abs(a)):
+                even = False
+                break
+        if even:
+            out[nm] = [r.x_names[j] for j in cols]
+    return out

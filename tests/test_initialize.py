@@ -94,7 +94,6 @@ def test_inputs_enter_algebraic_values():
 
 
 def test_initialize_reduced_index3_model():
-    pytest.importorskip("daekit.reduction")
     from daekit.reduction import reduce_index
 
     r = reduce_index(dk.examples.pendulum_planar())

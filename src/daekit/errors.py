@@ -2,16 +2,28 @@
 
 Every error daekit raises on bad input is a :class:`DaekitError`, and its message names the
 equation or variable at fault and says what to do.
+
+One rule for all of them: a daekit error says that something the user gave (a model, values,
+options, a problem statement) cannot be used as given -- an argument with the right type and an
+inappropriate value -- so every :class:`DaekitError` is also a :class:`ValueError`. Code that
+guards against bad input in general catches ``ValueError``; code that wants daekit's own
+diagnosis catches ``DaekitError`` or one of its subclasses below. Bugs inside daekit surface as
+other exceptions, never as a ``DaekitError``.
+
+>>> import daekit as dk
+>>> all(issubclass(e, ValueError) for e in (dk.ModelError, dk.ReductionError,
+...     dk.InitializationError, dk.SimulationError, dk.OCPError))
+True
 """
 
 from __future__ import annotations
 
 
-class DaekitError(Exception):
+class DaekitError(ValueError):
     """Base class of all daekit errors."""
 
 
-class ModelError(DaekitError, ValueError):
+class ModelError(DaekitError):
     """The model is malformed: an undeclared symbol, a bad ``der``, a duplicate name, ..."""
 
 

@@ -629,8 +629,8 @@ class Model:
         under_e = [eq_names[i] for i in dm.under_rows]
         under_v = [names[j] for j in dm.under_cols]
         lines = [
-            f"model {self.name!r} is structurally singular: {inc.n_equations} equations, "
-            f"{inc.n_unknowns} unknowns, at most {dm.matching_size} can be matched."
+            f"model {self.name!r} is structurally singular: {_count(inc.n_equations, 'equation')}, "
+            f"{_count(inc.n_unknowns, 'unknown')}, at most {dm.matching_size} can be matched."
         ]
         if over_e:
             if over_v:
@@ -645,11 +645,16 @@ class Model:
                     "(only time, inputs or parameters): they cannot be solved for anything; "
                     "remove them, or declare the unknown they should determine."
                 )
-        if under_v:
+        if under_v and under_e:
             lines.append(
                 f"  Under-determined: the unknowns {_short(under_v)} appear only in the equations "
                 f"{_short(under_e)}, too few to determine them; add an equation, or declare one "
                 "of them as a control or parameter."
+            )
+        elif under_v:
+            lines.append(
+                f"  Under-determined: the unknowns {_short(under_v)} appear in no equation; add "
+                "an equation for them, or remove them, or declare them as controls or parameters."
             )
         raise StructuralError(
             "\n".join(lines),
@@ -663,6 +668,11 @@ class Model:
         kinds = {k: [v.name for v in self.variables.values() if v.kind == k] for k in KINDS}
         parts = ", ".join(f"{k}s={v}" for k, v in kinds.items() if v)
         return f"Model({self.name!r}: {self.n_equations} equations; {parts})"
+
+
+def _count(n: int, noun: str) -> str:
+    """``"1 equation"``, ``"3 equations"``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def _short(names: list[str], limit: int = 12) -> str:

@@ -21,7 +21,7 @@ from ..model import element_name, parse_name
 __all__ = ["InputSignal", "InputError", "resolve_params"]
 
 
-class InputError(DaekitError, ValueError):
+class InputError(DaekitError):
     """An input is missing, of the wrong size, not a function of time, or returns NaN."""
 
 

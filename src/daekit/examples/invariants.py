@@ -133,8 +133,8 @@ def rigid_body_rates(t, W: float = 1.0, w3: float = 2.0, I1: float = 1.0,
 def rigid_body_energy(w, I=RIGID_BODY_DATA["I"]) -> np.ndarray:  # noqa: B006 - a tuple
     """Kinetic energy ``sum I_k w_k^2 / 2`` of body rates ``w`` (``(N, 3)``).
 
-    >>> float(rigid_body_energy(np.array([[1.0, 0.0, 2.0]])))
-    3.5
+    >>> rigid_body_energy(np.array([[1.0, 0.0, 2.0]])).tolist()
+    [3.5]
     """
     w = np.atleast_2d(np.asarray(w, dtype=float))
     return 0.5 * (w**2 @ np.asarray(I, dtype=float))

@@ -218,9 +218,9 @@ def check_declared(r: ReducedDAE, n_found: int, seed: int = 0, points: int = 3,
     rng = np.random.default_rng(seed + 101)
     checked = 0
     for _ in range(points * 3):
-        t0, u0, ud0 = float(rng.uniform(0.1, 1.0)), rng.uniform(0.2, 1.2, r.nu), \
-            rng.uniform(0.2, 1.2, r.nu)
-        wv = _manifold_point(lambda wv: hsym(wv, t0, u0), n, rng, dense)
+        t0 = float(rng.uniform(0.1, 1.0))
+        u0, ud0 = rng.uniform(0.2, 1.2, r.nu), rng.uniform(0.2, 1.2, r.nu)
+        wv = _manifold_point(lambda wv, t0=t0, u0=u0: hsym(wv, t0, u0), n, rng, dense)
         if wv is None:
             continue
         res = dfun(t0, wv[: r.nx], wv[r.nx:], u0, r.p_values, ud0)

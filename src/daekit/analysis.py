@@ -37,6 +37,8 @@ from .errors import ModelError
 from .model import Model
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
+from .threads import limit_blas_threads
+from .wording import count
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
            "is_index1"]
@@ -178,8 +180,8 @@ def _check_point(model: Model, point) -> dict[str, np.ndarray]:
             arr = np.full(size, arr[0])
         if arr.size != size:
             raise ModelError(
-                f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
-                f"{size} element(s); give {size} values (or one for all)"
+                f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
+                f"has {count(size, 'element')}; give {count(size, 'value')} (or one for all)"
             )
         if not np.all(np.isfinite(arr)):
             raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
@@ -260,7 +262,7 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     >>> dk.is_index1(dk.examples.l3()).rank
     6
     """
-    Model.require(model, "is_index1")
+    model = Model.require(model, "is_index1")
     model.validate()
     return _at_finite_point(model, point, seed, lambda pt: _easy_test(model, pt), "is_index1")
 
@@ -434,7 +436,7 @@ def differential_index(
     >>> differential_index(dk.examples.gear_petzold()).index
     2
     """
-    Model.require(model, "differential_index")
+    model = Model.require(model, "differential_index")
     model.validate()
     inc = model.incidence()
     eq_lab, unk_lab = _components(inc)
@@ -724,6 +726,7 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
     return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
 
 
+@limit_blas_threads
 def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
     analysis is trustworthy here, the differential index, the DOF, and the easy test.
@@ -767,7 +770,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     >>> a.index, a.dof, a.equation_offsets["rod"]
     (3, 4, 2)
     """
-    Model.require(model, "analyze")
+    model = Model.require(model, "analyze")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns
@@ -891,7 +894,7 @@ def _explain(a: Analysis) -> str:
     n = len(a.equation_offsets)
     n_alg = sum(1 for v in a.highest_order.values() if v == 0)
     lines = [
-        f"Model {a.model_name!r}: {n} equations in {n} unknowns "
+        f"Model {a.model_name!r}: {count(n, 'equation')} in {count(n, 'unknown')} "
         f"({n - n_alg} appear differentiated, {n_alg} only algebraically)"
         + (f", {a.n_inputs} input(s)." if a.n_inputs else "."),
         "",
@@ -956,7 +959,7 @@ def _explain(a: Analysis) -> str:
             )
     lines.append("")
     lines.append(
-        f"Degrees of freedom: {a.dof} initial values can be chosen freely; the rest follow from "
+        f"Degrees of freedom: {count(a.dof, 'initial value')} can be chosen freely; the rest follow from "
         "the equations and their hidden consistency conditions"
         + (" and the declared invariants." if a.declared_invariants else ".")
     )

@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError, StructuralError
+from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "parse_name", "element_name", "expand_name",
            "NameNotFoundError"]
@@ -196,6 +197,7 @@ class Model:
         self.declared_invariants: list[Equation] = []
         # element hash -> (variable, element index, derivative order)
         self._lookup: dict[int, tuple[Variable, int, int]] = {}
+        self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
         self._cache: dict[str, object] = {}
 
     # ------------------------------------------------------------------ declarations
@@ -210,13 +212,27 @@ class Model:
         if not isinstance(size, (int, np.integer)) or size < 1:
             raise ModelError(f"model {self.name!r}: variable {name!r} needs a size >= 1, got {size!r}")
         size = int(size)
-        sym = ca.vertcat(*[ca.SX.sym(element_name(name, size, i)) for i in range(size)])
+        elems = [ca.SX.sym(element_name(name, size, i)) for i in range(size)]
+        sym = ca.vertcat(*elems)
         var = Variable(name, kind, size, sym, default)
         self.variables[name] = var
-        for i in range(size):
-            self._lookup[sym[i].element_hash()] = (var, i, 0)
+        for i, e in enumerate(elems):
+            self._lookup[e.element_hash()] = (var, i, 0)
+        self._elements[name, 0] = elems
         self._cache.clear()
         return sym
+
+    def _order_elements(self, var: Variable, order: int) -> list:
+        """The scalar symbols of ``var``'s order-``order`` derivative (created on first use and
+        registered for :meth:`lookup`)."""
+        key = (var.name, order)
+        elems = self._elements.get(key)
+        if elems is None:
+            elems = ca.vertsplit(var.der(order)) if var.size > 1 else [var.der(order)]
+            for i, e in enumerate(elems):
+                self._lookup.setdefault(e.element_hash(), (var, i, order))
+            self._elements[key] = elems
+        return elems
 
     def state(self, name: str, size: int = 1) -> ca.SX:
         """Declare an unknown whose time derivative appears in the equations."""
@@ -266,8 +282,8 @@ class Model:
                 f"m.state/m.variable/m.control), got {type(x).__name__}"
             )
         out = []
-        for i in range(x.numel()):
-            e = x[i]
+        xs = ca.vertsplit(ca.vec(x)) if x.numel() > 1 else [x]
+        for e in xs:
             hit = self._lookup.get(e.element_hash()) if e.is_symbolic() else None
             if hit is None:
                 what = str(e) if e.numel() == 1 else "an expression"
@@ -292,10 +308,7 @@ class Model:
                     f"model {self.name!r}: der({var.name}) is the derivative of a parameter "
                     "(a constant); use m.state or m.control for a time-varying quantity"
                 )
-            new = var.der(order + int(k))
-            el = new[idx]
-            self._lookup.setdefault(el.element_hash(), (var, idx, order + int(k)))
-            out.append(el)
+            out.append(self._order_elements(var, order + int(k))[idx])
         self._cache.clear()
         return ca.vertcat(*out) if len(out) != 1 else out[0]
 
@@ -451,7 +464,15 @@ class Model:
 
     @property
     def equation_names(self) -> list[str]:
-        return [e.element(i) for e in self.equations for i in range(e.size)]
+        """Element names of the equations, ``"rod"``, ``"newton[0]"``, ... (cached; do not
+        mutate)."""
+        if "equation_names" not in self._cache:
+            out: list[str] = []
+            for e in self.equations:
+                k = e.size
+                out += [e.name] if k == 1 else [f"{e.name}[{i}]" for i in range(k)]
+            self._cache["equation_names"] = out
+        return self._cache["equation_names"]
 
     @property
     def residual(self) -> ca.SX:
@@ -485,30 +506,62 @@ class Model:
         >>> print(m.symbols_at([0, 1, 2, 0], [1, 1, 0, 0]))
         [der(p)[0], der(p)[1], z, p[0]]
         """
-        js = [int(j) for j in js]
+        js = np.asarray(js, dtype=np.int64).ravel()
         if isinstance(orders, (int, np.integer)):
-            orders = [int(orders)] * len(js)
-        orders = [int(o) for o in orders]
-        if len(orders) != len(js):
+            orders = np.full(js.size, int(orders), dtype=np.int64)
+        orders = np.asarray(orders, dtype=np.int64).ravel()
+        if orders.size != js.size:
             raise ModelError(
                 f"model {self.name!r}: symbols_at needs one order per unknown "
-                f"({len(js)} unknowns, {len(orders)} orders)"
+                f"({count(int(js.size), 'unknown')}, {count(int(orders.size), 'order')})"
             )
-        if not js:
+        if not js.size:
             return ca.SX(0, 1)
-        unknowns = self.unknowns
-        parts = []
-        run_var, run_order, run_idx = None, None, []
-        for j, o in zip(js, orders, strict=True):
-            var, i = unknowns[j]
-            if var is run_var and o == run_order:
-                run_idx.append(i)
-                continue
-            if run_idx:
-                parts.append(run_var.der(run_order)[run_idx])
-            run_var, run_order, run_idx = var, o, [i]
-        parts.append(run_var.der(run_order)[run_idx])
-        return ca.vertcat(*parts)
+        var_of, elem_of = self._unknown_arrays()
+        variables = self.unknown_variables
+        parts, base, pos = [], 0, np.empty(js.size, dtype=np.int64)
+        for o in np.unique(orders):
+            sel = np.nonzero(orders == o)[0]
+            for vi in np.unique(var_of[js[sel]]):
+                variables[vi].der(int(o))  # create the derivative symbols asked for
+            stack, start = self._stack(int(o))
+            pos[sel] = base + start[var_of[js[sel]]] + elem_of[js[sel]]
+            parts.append(stack)
+            base += int(stack.numel())
+        big = parts[0] if len(parts) == 1 else ca.vertcat(*parts)
+        return big[pos.tolist()]
+
+    def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""
+        if "unknown_arrays" not in self._cache:
+            sizes = np.array([v.size for v in self.unknown_variables], dtype=np.int64)
+            var_of = np.repeat(np.arange(sizes.size), sizes)
+            starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if sizes.size else sizes
+            elem_of = np.arange(int(sizes.sum())) - np.repeat(starts, sizes)
+            self._cache["unknown_arrays"] = (var_of, elem_of)
+        return self._cache["unknown_arrays"]
+
+    def _stack(self, order: int) -> tuple[ca.SX, np.ndarray]:
+        """All existing order-``order`` symbols of the unknowns stacked in one SX column, and
+        the start of each unknown variable in it (``-1`` for variables without that order):
+        one indexing of this column gives many symbols (cached while no new derivative symbol
+        appears)."""
+        variables = self.unknown_variables
+        have = tuple(order == 0 or order in v.ders for v in variables)
+        cache = self._cache.setdefault("stacks", {})
+        hit = cache.get(order)
+        if hit is not None and hit[0] == have:
+            return hit[1], hit[2]
+        start = np.full(len(variables), -1, dtype=np.int64)
+        pieces, off = [], 0
+        for k, (v, h) in enumerate(zip(variables, have, strict=True)):
+            if h:
+                start[k] = off
+                pieces.append(v.der(order))
+                off += v.size
+        stack = ca.vertcat(*pieces) if pieces else ca.SX(0, 1)
+        cache[order] = (have, stack, start)
+        return stack, start
 
     def lookup(self, sym: ca.SX) -> tuple[Variable, int, int] | None:
         """(variable, element, order) of a scalar symbol of this model, or None."""
@@ -553,16 +606,16 @@ class Model:
             return self._cache["inc"]
         F = self.residual
         unknowns = self.unknowns
-        col_of: dict[int, int] = {}
-        for j, (var, i) in enumerate(unknowns):
-            col_of[id(var), i] = j
+        var_of, _ = self._unknown_arrays()
         rows_all, cols_all, vals_all = [], [], []
         max_ord = max((self.max_order(v) for v in self.unknown_variables), default=0)
         for order in range(max_ord + 1):
-            cols_k = [j for j, (var, i) in enumerate(unknowns) if order == 0 or order in var.ders]
-            if not cols_k:
+            has = np.array([order == 0 or order in v.ders for v in self.unknown_variables],
+                           dtype=bool)
+            cols_k = np.nonzero(has[var_of])[0] if var_of.size else np.zeros(0, np.int64)
+            if not cols_k.size:
                 continue
-            X = ca.vertcat(*[unknowns[j][0].der(order)[unknowns[j][1]] for j in cols_k])
+            X = self.symbols_at(cols_k, order)
             r, c = ca.jacobian_sparsity(F, X).get_triplet()
             rows_all.append(np.asarray(r, dtype=np.int64))
             cols_all.append(np.asarray(cols_k, dtype=np.int64)[np.asarray(c, dtype=np.int64)])
@@ -587,13 +640,17 @@ class Model:
 
     @staticmethod
     def require(obj, where: str) -> Model:
-        """``obj`` if it is a Model, else a :class:`ModelError` saying what ``where`` needs."""
-        if not isinstance(obj, Model):
-            raise ModelError(
-                f"{where} needs a daekit.Model, got {type(obj).__name__}"
-                + (" (call .model() on a LagrangianSystem)" if hasattr(obj, "index1") else "")
-            )
-        return obj
+        """``obj`` if it is a Model, its ``.model()`` if it is a
+        :class:`~daekit.mechanics.LagrangianSystem` (the one rule of every entry point), else a
+        :class:`ModelError` saying what ``where`` needs."""
+        if isinstance(obj, Model):
+            return obj
+        if hasattr(obj, "index1") and callable(getattr(obj, "model", None)):
+            return obj.model()
+        raise ModelError(
+            f"{where} needs a daekit.Model, got {type(obj).__name__} (a "
+            "daekit.mechanics.LagrangianSystem is accepted too)"
+        )
 
     def validate(self) -> None:
         """Check the model; raise :class:`ModelError` or :class:`StructuralError` naming the fault.
@@ -671,8 +728,8 @@ class Model:
 
 
 def _count(n: int, noun: str) -> str:
-    """``"1 equation"``, ``"3 equations"``."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+    """``"1 equation"``, ``"3 equations"`` (:func:`daekit.wording.count`)."""
+    return count(n, noun)
 
 
 def _short(names: list[str], limit: int = 12) -> str:
@@ -688,8 +745,18 @@ def _zero_entries(sx: ca.SX) -> list[int]:
     present = np.zeros(n, dtype=bool)
     present[np.asarray(row, dtype=np.int64)] = True
     out = set(np.nonzero(~present)[0].tolist())
-    nz = sx.nonzeros()
-    out.update(int(r) for r, e in zip(row, nz, strict=True) if e.is_zero())
+    nz = sx.nz[:]  # whole vector: the nonzeros that depend on no symbol are constants
+    if nz.numel():
+        syms = ca.symvar(nz)
+        const = np.ones(nz.numel(), dtype=bool)
+        if syms:
+            dep, _ = ca.jacobian_sparsity(nz, ca.vertcat(*syms)).get_triplet()
+            const[np.asarray(dep, dtype=np.int64)] = False
+        k = np.nonzero(const)[0]
+        if k.size:
+            vals = np.asarray(ca.evalf(nz[k.tolist()]), dtype=float).ravel()
+            rows = np.asarray(row, dtype=np.int64)
+            out.update(rows[k[vals == 0.0]].tolist())
     return sorted(out)
 
 

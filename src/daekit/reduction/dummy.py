@@ -66,6 +66,7 @@ from ..errors import ReductionError
 from ..model import Model
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
+from ..threads import limit_blas_threads
 from .differentiate import derivative_name
 from .invariants import attach_declared, declared_condition, declared_dummy
 from .reduce import (
@@ -351,6 +352,7 @@ def _select_stage(J: sp.csr_matrix, R: np.ndarray, C: np.ndarray):
     return [(R, C, cols, cond)], None
 
 
+@limit_blas_threads
 def dummy_derivatives(
     model: Model, point: Mapping | None = None, check: bool = True, seed: int = 0
 ) -> ReducedDAE:

@@ -8,7 +8,8 @@ output points inside it, and ``checks`` evenly spaced check points). When one fi
 driver keeps the rows before the firing time, lets the monitor *act* (project, re-select the
 states, reset a state, stop), and starts the next segment there. A restart of IDAS happens
 only at such an event -- and at the end of a segment in which nothing fired, whose length
-doubles every time, so there are only logarithmically many of those. After an event the next
+quadruples every time (the first is a quarter of the span), so there are only
+logarithmically many of those. After an event the next
 segment is 1.5 times the time since the previous restart (events that recur, like drift
 crossing a tolerance, then cost little re-integration).
 
@@ -45,6 +46,10 @@ and says whether and when it fired, ``act`` says what to do)::
   two rows at the event time: before and after), ``terminal=True`` to stop, ``ignore=True``
   when the firing turned out not to be an event (the monitor is asked again on the rest of the
   segment; nothing restarts), and a ``label`` for ``driver.events``.
+- ``at_end(seg, driver, state)`` (optional): the segment ended without a firing; IDAS
+  restarts there anyway, so an Action costs nothing extra (projection projects early when the
+  drift is near the tolerance); ``horizon(state)`` (optional) suggests the next segment's
+  length (the drift monitor predicts its next crossing).
 - ``accept(seg, upto, state)`` (optional) is told which rows were kept (``seg.t[:upto + 1]``),
   e.g. to remember the last value of a pivot measure; ``rescue(driver, t, x, z, system, error,
   state)`` (optional) may return an Action when IDAS failed in a segment starting at ``t``
@@ -103,7 +108,9 @@ __all__ = ["Driver", "Monitor", "Segment", "Firing", "Action", "DriverResult"]
 @dataclass
 class Segment:
     """The rows of one IDAS run: ``t (K,)`` (row 0 the start), ``X (K, nx)``, ``Z (K, nz)``,
-    ``U (K, nu)``, parameters ``p``, ``output`` (which rows are user output points)."""
+    ``U (K, nu)``, parameters ``p``, ``output`` (which rows are user output points), ``check``
+    (which rows are the segment's check points, its start and end: they depend on the segment
+    only, so a monitor that looks at them alone acts the same on every output grid)."""
 
     t: np.ndarray
     X: np.ndarray
@@ -113,11 +120,16 @@ class Segment:
     output: np.ndarray
     system: System
     driver: Driver
+    check: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.check is None:
+            self.check = np.ones(self.t.size, bool)
 
     def tail(self, i: int) -> Segment:
         """The rows from ``i`` on (row ``i`` becomes the start)."""
         return Segment(self.t[i:], self.X[i:], self.Z[i:], self.U[i:], self.p, self.output[i:],
-                       self.system, self.driver)
+                       self.system, self.driver, self.check[i:])
 
 
 @dataclass
@@ -166,6 +178,15 @@ class Monitor:
     def accept(self, seg: Segment, upto: int, state: Any) -> Any:
         """Rows ``seg.t[:upto + 1]`` were kept; returns the new state."""
         return state
+
+    def at_end(self, seg: Segment, driver: Driver, state: Any) -> tuple[Action | None, Any]:
+        """The segment ended without a firing and IDAS restarts at ``seg.t[-1]``: an Action to
+        take there at no extra cost (e.g. project early), or None."""
+        return None, state
+
+    def horizon(self, state: Any) -> float | None:
+        """The length of the next segment this monitor suggests (None: the driver's rule)."""
+        return None
 
     def rescue(self, driver: Driver, t: float, x, z, system: System, error: IntegrationFailure,
                state: Any) -> tuple[Action | None, Any]:
@@ -229,13 +250,13 @@ class Driver:
     progress : bool
         Progress bar (on a terminal only).
     checks : int
-        Check points per segment when there are monitors.
+        Check points per segment (default 32 with monitors, 64 without).
     label : str
         For the progress bar and messages.
     """
 
     def __init__(self, system: System, tg, x0, z0, pv, monitors=(), progress: bool = False,
-                 checks: int = 32, label: str = "simulate") -> None:
+                 checks: int | None = None, label: str = "simulate") -> None:
         self.system = system
         self.tg = np.asarray(tg, dtype=float)
         self.x0 = np.asarray(x0, dtype=float).ravel()
@@ -243,40 +264,55 @@ class Driver:
         self.pv = np.asarray(pv, dtype=float).ravel()
         self.monitors = list(monitors)
         self.progress = progress
-        self.checks = int(checks)
+        # check points per segment: with monitors where they look; without, they only bound
+        # the steps a failing attempt may take (IDAS interpolates them: no effect on steps)
+        self.checks = int(checks) if checks is not None else (32 if self.monitors else 64)
         self.label = label
         self.span = float(self.tg[-1] - self.tg[0])
         self.stats: dict = {"steps": 0, "residual_evaluations": 0, "jacobian_evaluations": 0,
                             "error_test_failures": 0, "newton_failures": 0, "segments": 0,
                             "restarts": 0, "relocations": 0, "_p": self.pv}
         self.notes: list[str] = []
+        #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
+        self.current = system
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
         for k, v in st.items():
             self.stats[k] = self.stats.get(k, 0) + v
 
-    def _attempt(self, system: System, grid, x, z):
-        """Run ``grid`` from ``(x, z)``: first with a step budget, then IDAS variants."""
+    def _attempt(self, system: System, grid, x, z, first: bool = False):
+        """Run ``grid`` from ``(x, z)``: with a step budget per grid interval from the
+        consistent values (at the very start: IDAS's own consistent initialization first),
+        then excluding the algebraic unknowns from the error test; without monitors a last
+        attempt gets the full budget. A failing attempt gives up early: grid intervals are
+        short (check points), the budget is ``System.first_budget`` steps per interval."""
         user_budget = "max_num_steps" in system.options
-        tries: list[dict] = [{} if user_budget else {"max_num_steps": System.first_budget}]
+        budget = {} if user_budget else {"max_num_steps": System.first_budget}
+        tries: list[tuple[dict, bool]] = []
+        if first and system.r.info.get("index", 1) < 2:
+            tries.append((budget, False))  # IDACalcIC (CasADi's default start)
+        tries.append((budget, True))
         if "suppress_algebraic" not in system.options:
-            tries.append({"suppress_algebraic": True, "step0": 1e-12 * max(1.0, self.span)})
-        if not user_budget:
-            tries.append({})
-        first = None
-        for k, extra in enumerate(tries):
+            tries.append(({**budget, "suppress_algebraic": True,
+                           "step0": 1e-12 * max(1.0, self.span)}, True))
+        if not user_budget and not self.monitors:
+            tries.append(({}, True))
+        first_exc = None
+        for k, (extra, consistent) in enumerate(tries):
             try:
-                X, Z, st = system.run(grid, x, z, self.pv, extra, span=self.span)
+                X, Z, st = system.run(grid, x, z, self.pv, extra, consistent=consistent,
+                                      span=self.span)
             except IntegrationFailure as exc:
-                first = first or exc
+                first_exc = first_exc or exc
+                self.stats["failed_attempts"] = self.stats.get("failed_attempts", 0) + 1
                 continue
             self._count(st)
-            if k:
-                self.notes.append(f"at t = {grid[0]:.6g} a first IDAS attempt failed "
-                                  f"({first.why}); a retry with other settings succeeded")
+            if k and not (first and k == 1):
+                self.notes.append(f"a first IDAS attempt failed ({first_exc.why}); a retry "
+                                  "with other settings succeeded")
             return X, Z
-        raise first
+        raise first_exc
 
     def state_at(self, system: System, ta: float, xa, za, t: float):
         """The state ``(x, z)`` at ``t >= ta`` integrated from ``(xa, za)`` at ``ta``."""
@@ -348,24 +384,28 @@ class Driver:
         pts = [np.array([t]), outs]
         if outs.size == 0 or outs[-1] < tb:
             pts.append(np.array([tb]))
-        if self.monitors:
-            n = self.checks
-            dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
-            if dts:
-                n = max(n, int(math.ceil((tb - t) / min(dts))))
-            n = min(n, 20000)
-            pts.append(np.linspace(t, tb, n + 1)[1:-1])
+        n = self.checks
+        dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
+        if dts:
+            n = max(n, int(math.ceil((tb - t) / min(dts))))
+        n = min(n, 20000)
+        chk = np.linspace(t, tb, n + 1)
+        chk[0], chk[-1] = t, tb
+        pts.append(chk[1:-1])
         grid = np.unique(np.concatenate(pts))
-        # drop check points closer than 1e-9 of the segment to an output point
         is_out = np.isin(grid, outs)
-        keep = np.ones(grid.size, bool)
+        is_chk = np.isin(grid, chk)
+        # a check point closer than 1e-9 of the segment after an output point: dropped, the
+        # output row stands for it (check rows depend only on the segment, not on the grid)
         if grid.size > 2:
             eps = 1e-9 * (tb - t)
             d_prev = np.diff(grid, prepend=-np.inf)
-            keep = ~((d_prev < eps) & ~is_out)
-            keep[0] = True
-        grid, is_out = grid[keep], is_out[keep]
-        return grid, is_out, j
+            drop = (d_prev < eps) & ~is_out
+            drop[0] = False
+            is_chk[np.nonzero(drop)[0] - 1] = True
+            keep = ~drop
+            grid, is_out, is_chk = grid[keep], is_out[keep], is_chk[keep]
+        return grid, is_out, is_chk, j
 
     def run(self) -> DriverResult:
         """Integrate over the whole grid; returns a :class:`DriverResult`."""
@@ -377,36 +417,43 @@ class Driver:
         result.parts.append(cur)
         states = [m.init(self, t, x, z) for m in self.monitors]
         k = 1
-        L = self.span if not self.monitors else self.span / 16
+        L = self.span if not self.monitors else self.span / 4
         bar = Progress(self.progress, tg[0], tg[-1], self.label)
         w0 = time.perf_counter()
         last_fail_t = None
+        fails = 0
         same_time_events = 0
         try:
             while k < n:
                 tb = t + L
                 if tb >= tg[-1] - 1e-12 * max(1.0, abs(tg[-1])) or (tg[-1] - tb) < 0.05 * L:
                     tb = float(tg[-1])
-                grid, is_out, j = self._grid(t, tb, k)
+                grid, is_out, is_chk, j = self._grid(t, tb, k)
                 self.stats["segments"] += 1
                 try:
-                    X, Z = self._attempt(system, grid, x, z)
+                    X, Z = self._attempt(system, grid, x, z, first=(t == tg[0]))
                 except IntegrationFailure as exc:
+                    fails = fails + 1 if last_fail_t == t else 1
                     act = None
-                    for mi, m in enumerate(self.monitors):
-                        act, states[mi] = m.rescue(self, t, x, z, system, exc, states[mi])
-                        if act is not None:
-                            break
-                    if act is not None and last_fail_t != t:
-                        last_fail_t = t
+                    if fails == 1:
+                        for mi, m in enumerate(self.monitors):
+                            act, states[mi] = m.rescue(self, t, x, z, system, exc, states[mi])
+                            if act is not None:
+                                break
+                    last_fail_t = t
+                    if act is not None:
                         system, x, z, cur = self._apply(act, system, t, x, z, result, cur)
                         L = max(L / 4, 1e-6 * self.span)
                         continue
+                    ahead = exc.t > t + 1e-9 * max(1.0, abs(t), self.span)
+                    if self.monitors and fails <= 4 and ahead:
+                        # integrate up to half-way to the failure: the monitors look at that
+                        # part (a degrading pivot is seen before IDAS breaks down on it)
+                        L = 0.5 * (exc.t - t)
+                        continue
                     ok = grid[grid < exc.t - 1e-9 * max(1.0, abs(exc.t))]
-                    if ok.size >= 2 and last_fail_t != t:
-                        # integrate up to the last grid point before the failure, then go on
-                        last_fail_t = t
-                        L = float(ok[-1] - t)
+                    if not self.monitors and fails == 1 and ok.size >= 2:
+                        L = float(ok[-1] - t)  # keep the grid points before the failure
                         continue
                     partial = result.trajectory()
                     raise SimulationError(
@@ -415,19 +462,30 @@ class Driver:
                         t=float(exc.t), trajectory=partial,
                     ) from None
                 last_fail_t = None
-                U = system.sig.values(grid)
-                seg = Segment(grid, X, Z, U, self.pv, is_out, system, self)
+                # inputs on the rows only for the monitors (a plain run does not need them)
+                U = system.sig.values(grid) if self.monitors else np.zeros((grid.size, 0))
+                seg = Segment(grid, X, Z, U, self.pv, is_out, system, self, is_chk)
                 fired = self._earliest(seg, states)
                 if fired is None:
                     self._record(cur, seg, len(grid) - 1, inclusive=True)
                     for mi, m in enumerate(self.monitors):
                         states[mi] = m.accept(seg, len(grid) - 1, states[mi])
                     t, x, z = float(grid[-1]), X[-1].copy(), Z[-1].copy()
+                    if t < tg[-1]:
+                        z = self.consistent(system, t, x, z)
                     k = j
                     bar.update(t)
                     if t < tg[-1]:
                         self.stats["restarts"] += 1
-                    L *= 2.0
+                        # IDAS restarts here anyway: monitors may act at no extra cost
+                        for mi, m in enumerate(self.monitors):
+                            act, states[mi] = m.at_end(seg, self, states[mi])
+                            if act is not None:
+                                if act.label is not None:
+                                    result.events.append((t, act.label))
+                                system, x, z, cur = self._apply(act, system, t, x, z, result,
+                                                                cur)
+                    L = self._next_length(states, 4.0 * L)
                     continue
                 mi, f, act = fired
                 te = float(f.t)
@@ -459,7 +517,7 @@ class Driver:
                         k += 1
                 if act.terminal:
                     break
-                L = max(1.5 * (te - t), 1e-6 * self.span, L / 64)
+                L = self._next_length(states, max(1.5 * (te - t), 1e-6 * self.span, L / 64))
                 t = te
                 self.stats["restarts"] += 1
                 bar.update(t)
@@ -469,6 +527,12 @@ class Driver:
         if self.notes:
             self.stats["note"] = "; ".join(dict.fromkeys(self.notes))
         return result
+
+    def _next_length(self, states, default: float) -> float:
+        hs = [h for m, st in zip(self.monitors, states, strict=True)
+              if (h := m.horizon(st)) is not None and h > 0]
+        L = min(hs) if hs else default
+        return max(L, 1e-9 * max(self.span, 1e-300))
 
     def _earliest(self, seg: Segment, states):
         """The earliest firing over the monitors as ``(monitor index, Firing, Action)``. Only
@@ -483,6 +547,9 @@ class Driver:
             _, mi = min(live)
             f = cands[mi]
             m = self.monitors[mi]
+            # IDAS's interpolated algebraic values satisfy alg = 0 only to the tolerance: made
+            # consistent before anyone acts on them (a re-selection turns them into states)
+            f.z = self.consistent(seg.system, float(f.t), f.x, f.z)
             act, states[mi] = m.act(f, self, states[mi])
             if not act.ignore:
                 if f.index >= 0:
@@ -498,20 +565,19 @@ class Driver:
 
     def _record(self, cur, seg: Segment, upto: int, inclusive: bool, before: float | None = None):
         """Keep the output rows of ``seg`` up to row ``upto`` (rows before ``before`` only)."""
-        for i in range(1, upto + 1):
-            if not seg.output[i]:
-                continue
-            if before is not None and seg.t[i] >= before:
-                continue
-            cur[1].append(float(seg.t[i]))
-            cur[2].append(seg.X[i].copy())
-            cur[3].append(seg.Z[i].copy())
+        sel = np.nonzero(seg.output[1: upto + 1])[0] + 1
+        if before is not None:
+            sel = sel[seg.t[sel] < before]
+        cur[1].extend(seg.t[sel].tolist())
+        cur[2].extend(seg.X[sel])  # row views of arrays no one writes to
+        cur[3].extend(seg.Z[sel])
 
     def _apply(self, act: Action, system: System, t: float, x, z, result: DriverResult, cur):
         x = np.asarray(act.x if act.x is not None else x, dtype=float).ravel().copy()
         z = np.asarray(act.z if act.z is not None else z, dtype=float).ravel().copy()
         if act.system is not None and act.system is not system:
             system = act.system
+            self.current = system
             cur = (system, [], [], [])
             result.parts.append(cur)
         z = self.consistent(system, t, x, z)

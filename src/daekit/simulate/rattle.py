@@ -52,6 +52,8 @@ import casadi as ca
 import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
+from ..wording import count
+from .progress import Progress
 
 __all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
 
@@ -120,7 +122,8 @@ class ConstrainedMechanics:
         pv = np.zeros(0) if self.p_values is None else np.asarray(self.p_values, float).ravel()
         if pv.size != self.p.numel():
             raise ModelError(
-                f"ConstrainedMechanics: {self.p.numel()} parameters but {pv.size} values in "
+                f"ConstrainedMechanics: {count(self.p.numel(), 'parameter')} but "
+                f"{count(pv.size, 'value')} in "
                 "p_values: give one value per parameter element"
             )
         self.p_values = pv
@@ -688,7 +691,7 @@ def _read_init(sysm: ConstrainedMechanics, init: Any) -> tuple[np.ndarray, np.nd
     arr = np.asarray(init, float).ravel()
     if arr.size != 2 * n:
         raise InitializationError(
-            f"RATTLE: init has {arr.size} numbers; give a dict of names or {2 * n} numbers "
+            f"RATTLE: init has {count(arr.size, 'number')}; give a dict of names or {2 * n} numbers "
             f"[{', '.join(sysm.q_names)}, {', '.join(sysm.v_names)}]"
         )
     return arr[:n], arr[n:]
@@ -857,7 +860,7 @@ def simulate_rattle(
     i = 0
     nout = tt.size - 1
     Xcur = ca.DM(X0)
-    bar = _Progress(tt[0], tt[-1]) if progress else None
+    bar = Progress(progress, tt[0], tt[-1], "RATTLE") if progress else None
     while i < nout:
         k = int(nsteps[i])
         j = i
@@ -991,25 +994,3 @@ def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
         pv[elems] = arr
     return pv
 
-
-class _Progress:
-    """A minimal progress bar on stderr."""
-
-    def __init__(self, t0: float, t1: float) -> None:
-        import sys
-
-        self.t0, self.t1, self.out = t0, t1, sys.stderr
-        self.last = -1
-
-    def update(self, t: float) -> None:
-        frac = (t - self.t0) / (self.t1 - self.t0) if self.t1 > self.t0 else 1.0
-        pct = int(100 * frac)
-        if pct != self.last:
-            self.last = pct
-            bar = "#" * (pct // 4)
-            self.out.write(f"\rRATTLE [{bar:<25}] {pct:3d}%  t = {t:.4g}")
-            self.out.flush()
-
-    def close(self) -> None:
-        self.out.write("\n")
-        self.out.flush()

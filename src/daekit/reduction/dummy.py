@@ -68,7 +68,7 @@ from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
 from .differentiate import derivative_name
-from .invariants import attach_declared, declared_condition, declared_dummy
+from .invariants import attach_declared, declared_dummy
 from .reduce import (
     _all_symbols,
     _assemble,
@@ -460,6 +460,12 @@ def dummy_derivatives(
     r.info["amendments"] = amendments
     n_found = len(r.invariant_names)  # declared invariants (m.invariant): one dummy state each
     declared_dummy(attach_declared(r, model, check=check, seed=seed), n_found, point, seed)
+    dec = r.info.get("declared_selection")
+    if dec:  # their gradient G joins J as one more diagonal block, watched like the stages
+        Gsym = dec["expression"]
+        k, nc = Gsym.shape
+        Jsym = ca.diagcat(Jsym, Gsym)
+        blocks = blocks + [(np.arange(n, n + k), np.arange(n, n + nc), dec["cols"])]
     r.info["selection_jacobian"] = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
     r.info["selection_blocks"] = blocks
     if check:
@@ -498,7 +504,7 @@ def selection_condition(r: ReducedDAE, x, z, u=None, p=None, t: float = 0.0) -> 
     except (TypeError, ValueError):
         raise ReductionError(f"selection_condition: t must be one number, got {t!r}") from None
     J = _to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
-    worst = declared_condition(r, t, x, z, u, p)
+    worst = 1.0
     for R, C, cols in r.info["selection_blocks"]:
         worst = max(worst, _block_condition(_dense(J, R, C), cols))
     return worst

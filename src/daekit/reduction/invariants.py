@@ -21,9 +21,11 @@ here they join the found ones:
   pivoting of ``G`` at the selection point (the largest pivot: for ``|q|^2 = 1`` the largest
   ``|q_j|``). That state becomes algebraic, its ODE row is dropped and ``c = 0`` takes its
   place among the algebraic equations, so the invariant holds by construction (to the
-  Newton tolerance). The choice is valid where the chosen pivot stays away from zero;
-  :func:`daekit.reduction.selection_condition` includes it, and the dummy-derivative
-  simulation re-selects when it degrades (a quaternion component passing through zero).
+  Newton tolerance). The choice is valid where the chosen pivot stays away from zero: ``G``
+  joins Pryce's system Jacobian as one more diagonal block of ``r.info["selection_jacobian"]``
+  / ``r.info["selection_blocks"]``, so :func:`daekit.reduction.selection_condition` watches
+  it and the dummy-derivative simulation re-selects when it degrades (a quaternion component
+  passing through zero).
 
 Example
 -------
@@ -55,7 +57,7 @@ from ..model import expand_name
 from ..reduced import ReducedDAE
 
 __all__ = ["attach_declared", "check_declared", "declared_names", "baumgarte_declared",
-           "declared_dummy", "declared_condition", "even_declared"]
+           "declared_dummy", "even_declared"]
 
 #: relative size of the derivative of a declared invariant, against the size of its terms,
 #: above which it is not an invariant
@@ -365,7 +367,8 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
     column pivoting picks one state per invariant (the largest pivot); those states become
     algebraic unknowns, their ODE rows are dropped, and the invariants join the algebraic
     equations. ``r.state_selection`` records the choice as a stage ``"declared"``;
-    ``r.info["declared_selection"]`` holds what :func:`declared_condition` needs.
+    ``r.info["declared_selection"]`` holds ``G`` (``"expression"``, in ``r``'s symbols), the
+    chosen columns and the candidate names.
     """
     names = list(r.invariant_names[n_found:])
     if not names:
@@ -415,26 +418,8 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
         "condition": cond, "blocks": 1}]
     sel["condition"] = max(float(sel.get("condition", 1.0)), cond)
     r.state_selection = sel
-    r.info["declared_selection"] = {
-        "jacobian": ca.Function("G", [r.t, r.x, r.z, r.u, r.p], [Gsym]),
-        "cols": cols,
-    }
+    r.info["declared_selection"] = {"expression": Gsym, "cols": cols, "candidates": cand}
     return r
-
-
-def declared_condition(r: ReducedDAE, t, x, z, u, p) -> float:
-    """``||G|| / sigma_min(G[:, chosen])`` of the declared invariants' selection at a point
-    (1.0 when ``r`` has none): how well the dummy states are determined."""
-    info = r.info.get("declared_selection")
-    if not info:
-        return 1.0
-    G = np.asarray(ca.DM(info["jacobian"](t, x, z, u, p)).full(), dtype=float)
-    if not np.all(np.isfinite(G)):
-        return float("inf")
-    sub = G[:, info["cols"]]
-    smin = np.linalg.svd(sub, compute_uv=False)[-1] if sub.size else 0.0
-    big = np.linalg.norm(G, 2)
-    return float(big / smin) if smin > 0 else float("inf")
 
 
 def even_declared(r: ReducedDAE, seed: int = 0) -> dict[str, list[str]]:

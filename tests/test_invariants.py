@@ -147,9 +147,12 @@ def test_initialize_dummy_derivative_system_determines_the_dummy():
 # ----------------------------------------------------------------------------- simulate
 def test_rigid_body_plain_drifts_and_reports_it():
     tr, rate_err, drift, e_err = rigid_body_run(None)
-    assert rate_err < 1e-6
-    # reference-problems.md: plain IDAS at 1e-8 over 100 s drifts to about 1.5e-6
-    assert 1e-7 < drift < 1e-5
+    # no remedy: IDAS on the minimal (explicit) form at 1e-8 is 1.7e-6 off after 100 s
+    # (measured; the implicit form with der(q) algebraic took more steps and was 2e-7 off)
+    assert rate_err < 5e-6
+    # reference-problems.md: plain IDAS at 1e-8 over 100 s drifts to about 1.5e-6 (implicit
+    # form); the explicit form drifts to 1.4e-5. Reported, and larger than with any remedy.
+    assert 1e-7 < drift < 1e-4
     assert float(np.max(np.abs(tr.invariant("unit")))) == pytest.approx(drift, rel=1e-6)
     assert tr.max_invariant()["unit"] == pytest.approx(drift, rel=1e-6)
     assert 0 < e_err < 1e-5
@@ -185,6 +188,26 @@ def test_baumgarte_refuses_a_declared_invariant_of_algebraic_unknowns():
         dk.baumgarte(r)
 
 
+def test_rigid_body_projection_by_drift_tolerance():
+    # the default drift_tol (100 atol): a few projections, output rows projected
+    tr, rate_err, drift, e_err = rigid_body_run("projection")
+    _, _, drift_none, _ = rigid_body_run(None)
+    assert rate_err < 1e-6 and e_err < 1e-6
+    assert drift < 1e-12 < drift_none
+    assert 0 < tr.stats["projections"] < 50
+
+
+@pytest.mark.slow
+def test_rigid_body_projection_with_a_tight_drift_tolerance():
+    # drift_tol = 1e-10 on the integrated state itself (outputs not projected): it holds, at
+    # the price of hundreds of restarts (10 s: 625 projections; the rates are then 7e-6 off,
+    # 50 times plain IDAS: each restart sends BDF back to order 1)
+    tr, rate_err, drift, e_err = rigid_body_run("projection", t_end=10.0, n=101,
+                                                drift_tol=1e-10, project_output=False)
+    assert drift < 1e-10
+    assert rate_err < 1e-4 and tr.stats["projections"] > 10
+
+
 def test_rigid_body_dummy_derivatives_hold_the_norm_by_construction():
     r = dk.reduce_index(inv.rigid_body(), method="dummy_derivatives", point=RB_FIXED)
     st = r.state_selection["stages"][-1]
@@ -198,10 +221,12 @@ def test_rigid_body_dummy_derivatives_hold_the_norm_by_construction():
     assert selection_condition(r, x, z) > 1e5
     r2 = dk.reselect(r, (x, z))
     assert r2.state_selection["dummies"] == ["q[1]"]
-    tr, rate_err, drift, e_err = rigid_body_run("dummy_derivatives", "dummy_derivatives",
-                                                t_end=20.0, n=201)
+    tr, rate_err, drift, e_err = rigid_body_run("dummy_derivatives", "dummy_derivatives")
     assert drift < 1e-12
-    assert rate_err < 1e-4 and e_err < 1e-4
+    # 100 s: about 70 re-selections (a component of q passes zero every 1.4 s), each a
+    # restart; 2.6e-6 off (plain IDAS: 1.7e-6)
+    assert rate_err < 5e-6 and e_err < 1e-6
+    assert len(tr.stats["selection_switches"]) > 10
 
 
 def test_lifted_pendulum_against_the_elliptic_solution():
@@ -214,10 +239,11 @@ def test_lifted_pendulum_against_the_elliptic_solution():
     ex = inv.lifted_pendulum_exact(t, theta0, g=9.8)
     # reference-problems.md section 2, case A: x(5) = -0.47657872558204044491 (L = 1)
     assert ex["s"][-1] == pytest.approx(-0.47657872558204044491, abs=1e-13)
-    for stab in (None, "baumgarte"):
+    for stab in (None, "baumgarte", "projection"):
         tr = dk.simulate(r, t, init, stabilization=stab, rtol=1e-10, atol=1e-10)
         for k in ("s", "c", "omega"):
             assert np.max(np.abs(tr[k] - ex[k])) < 1e-7, (stab, k)
+    assert np.max(np.abs(tr.invariant("circle"))) < 1e-12  # projection
 
 
 def test_lifted_square_against_the_exact_solution():
@@ -226,10 +252,11 @@ def test_lifted_square_against_the_exact_solution():
     assert init["w"] == pytest.approx(1.0, abs=1e-15)
     t = np.linspace(0.0, 10.0, 101)
     ex = inv.lifted_square_exact(t, -1.0)
-    for stab in (None, "baumgarte"):
+    for stab in (None, "baumgarte", "projection"):
         tr = dk.simulate(r, t, init, stabilization=stab, rtol=1e-10, atol=1e-10)
-        assert np.max(np.abs(tr["x"] - ex["x"])) < 1e-8
-        assert np.max(np.abs(tr["w"] - ex["w"])) < 1e-8
+        assert np.max(np.abs(tr["x"] - ex["x"])) < 5e-8, stab
+        assert np.max(np.abs(tr["w"] - ex["w"])) < 5e-8, stab
+    assert np.max(np.abs(tr.invariant("lift"))) < 1e-12  # projection
 
 
 def test_trajectory_invariants_and_their_plot():

@@ -65,6 +65,11 @@ CHECK_RTOL = 1e-8
 _DENSE = 400  # up to this many unknowns, manifold points by dense least squares
 
 
+def _col(e: ca.SX) -> ca.SX:
+    """``e`` as a column; an empty expression of any shape (a ``1x0`` ``alg``) as ``0x1``."""
+    return ca.vec(e) if e.numel() else ca.SX(0, 1)
+
+
 def declared_names(model) -> list[str]:
     """Element names of a model's declared invariants (``"unit"``, ``"lift[0]"``, ...).
 
@@ -125,7 +130,7 @@ def attach_declared(r: ReducedDAE, model, check: bool = True, seed: int = 0) -> 
         return r
     c = _declared_in(r, model)
     n_found = len(r.invariant_names)
-    r.invariants = ca.vertcat(r.invariants, c) if r.invariants.numel() else c
+    r.invariants = ca.vertcat(_col(r.invariants), c)
     r.invariant_names = list(r.invariant_names) + names
     r.info["declared_invariants"] = list(names)
     if r.method != "dummy_derivatives":
@@ -201,7 +206,7 @@ def check_declared(r: ReducedDAE, n_found: int, seed: int = 0, points: int = 3,
     t, x, z, u, p = r.t, r.x, r.z, r.u, r.p
     ud = ca.SX.sym("udot", r.nu)
     w = ca.vertcat(x, z)
-    H = ca.vertcat(r.alg, r.invariants)
+    H = ca.vertcat(_col(r.alg), _col(r.invariants))
     n = r.nx + r.nz
     dense = n <= _DENSE
     tt, uu = ca.SX.sym("tt"), ca.SX.sym("uu", r.nu)
@@ -213,8 +218,9 @@ def check_declared(r: ReducedDAE, n_found: int, seed: int = 0, points: int = 3,
     outs = [ca.densify(cdot), ca.densify(size)]
     uses_z = cz.nnz() > 0 and r.nz > 0
     if uses_z:
-        gz = ca.jacobian(r.alg, z)
-        rhs = ca.jacobian(r.alg, t) + ca.jtimes(r.alg, x, r.ode) + ca.jtimes(r.alg, u, ud)
+        alg = _col(r.alg)
+        gz = ca.jacobian(alg, z)
+        rhs = ca.jacobian(alg, t) + ca.jtimes(alg, x, r.ode) + ca.jtimes(alg, u, ud)
         outs += [cz, gz, ca.densify(rhs)]
     dfun = ca.Function("cdot", [t, x, z, u, p, ud], outs)
     rng = np.random.default_rng(seed + 101)
@@ -321,7 +327,7 @@ def baumgarte_declared(r: ReducedDAE, out: ReducedDAE, chains: list[dict],
     a = ca.DM(coefficients)
     alg_new = ca.jacobian(C, r.t) + ca.mtimes(G, ode) + a * C
     out.ode = ode
-    out.alg = ca.vertcat(out.alg, alg_new)
+    out.alg = ca.vertcat(_col(out.alg), alg_new)
     out.z = ca.vertcat(out.z, mu)
     out.z_names = list(out.z_names) + [f"mu({nm})" for nm in names]
     alg_names = list(out.info.get("alg_names") or [f"alg[{i}]" for i in range(r.nz)])
@@ -404,7 +410,7 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
     r.x = xs[keep] if keep else ca.SX(0, 1)
     r.z = ca.vertcat(r.z, xs[cols.tolist()])
     r.ode = r.ode[keep] if keep else ca.SX(0, 1)
-    r.alg = ca.vertcat(r.alg, c)
+    r.alg = ca.vertcat(_col(r.alg), c)
     dummies = [cand[i] for i in cols]
     r.x_names = [cand[i] for i in keep]
     r.z_names = list(r.z_names) + dummies

@@ -679,8 +679,7 @@ def initialize(
     # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
     # order; the free values are those of it that were not fixed (also under another name)
     dof_names = [nm for nm in r.x_names if nm in free]
-    fixed_x = {position[ca.SX(e).element_hash()] for _, e, _ in fixed_items
-               if ca.SX(e).is_symbolic() and ca.SX(e).element_hash() in position}
+    fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
     free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
         t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,

@@ -693,7 +693,7 @@ def ensemble(
 
 def _check_simulate_options(opts: Mapping) -> None:
     """The options every sample shares, checked once here (not failing every sample)."""
-    from .simulate.idas import STABILIZATIONS
+    from .simulate.dispatch import STABILIZATIONS
 
     stab = opts.get("stabilization")
     if isinstance(stab, str) and stab.lower() == "none":

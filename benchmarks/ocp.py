@@ -85,7 +85,8 @@ def cartpole():
 # ---------------------------------------------------------------------------- hand-written Opti
 def opti_collocation(prob, sol, guess):
     """The expert's Opti NLP of the same discretization as daekit's solution ``sol``: the
-    reduced system of ``prob``, the boundary conditions daekit imposed (``sol.boundary``),
+    reduced system of ``prob``, the boundary conditions daekit imposed (``sol.boundary``: kept
+    equalities, branch inequalities, pins),
     daekit's guess. Returns (objective, wall time, iterations)."""
     a = prob.aug
     N, d = prob.intervals, prob.degree
@@ -122,6 +123,9 @@ def opti_collocation(prob, sol, guess):
     rows = prob.bc_fun(v0, vT, P, T)
     for i in ba.kept:
         opti.subject_to(rows[i] == 0)
+    if sol.stats.get("boundary_selectors_imposed"):
+        for i, lo, hi in ba.selectors:  # daekit's branch inequalities: the same NLP
+            opti.subject_to(opti.bounded(lo, rows[i], hi))
     for kind, i, val, _ in ba.pins:
         opti.subject_to((v0 if kind == "initial" else vT)[i] == val)
     for kind, V_ in (("x", X), ("z", Z), ("w", U)):

@@ -11,7 +11,12 @@ their own grid:
   see :class:`_GuessSimulator`). Should the integration fail, the rest of the guess is a
   straight line to the nearest point that satisfies the algebraic equations, the invariants
   and the final conditions at ``t = T`` (held constant when there is no such point nearby);
-  the guess's note (in the report) says so.
+  the guess's note (in the report) says so. When the simulation runs through but does not
+  reach the final conditions (a pendulum to be swung up stays hanging), the guess *blends*
+  from the initial point to the consistent final point nearest the simulation's end, along
+  the invariant manifold (:func:`_manifold_blend`: a small least-squares NLP for states,
+  algebraic unknowns and controls on the interval boundaries), so that the default guess
+  respects the boundary conditions.
 - a :class:`daekit.Trajectory` from :func:`daekit.simulate` (the user's own simulation with
   the controls of their choice): its values, read by the original model's names, are
   interpolated linearly onto the NLP's grid.
@@ -42,6 +47,7 @@ class Guess:
     V: np.ndarray | None = None
     key: tuple | None = None
     note: str = ""
+    lam: tuple | None = None  # (lam_x, lam_g) of a previous solution: IPOPT's warm start
 
 
 def _interp_fun(t: np.ndarray, X: np.ndarray, Z: np.ndarray, W: np.ndarray):
@@ -81,7 +87,7 @@ def make_guess(prob, guess) -> Guess:
         tt = guess.t * (T / guess.T)
         p = guess._P.copy()
         return Guess(_interp_fun(tt, guess._X, guess._Z, guess._W), T, p, guess._V, guess._key,
-                     "warm start from a previous solution")
+                     "warm start from a previous solution", getattr(guess, "_lam", None))
     if isinstance(guess, Trajectory):
         if guess.t.size < 1:
             raise OCPError("solve(guess=trajectory): the trajectory is empty")

@@ -72,6 +72,14 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float,
     x0 = np.clip(x0, lbx, ubx)
     V, G = B.V(), B.G()
     opts = ipopt_options(prob, tr.hessian_exact)
+    lam0 = {}
+    if (g.lam is not None and g.V is not None and g.key == key
+            and g.lam[0].size == x0.size and g.lam[1].size == lbg.size):
+        # the same NLP: a primal-dual warm start (multipliers, a small barrier parameter)
+        lam0 = {"lam_x0": g.lam[0], "lam_g0": g.lam[1]}
+        for k_, v_ in (("warm_start_init_point", "yes"), ("mu_init", 1e-6),
+                       ("warm_start_bound_push", 1e-9), ("warm_start_mult_bound_push", 1e-9)):
+            opts.setdefault(f"ipopt.{k_}", v_)
     pre = []
     if ba.proven:
         pre.append(conflict_message(ba, prob))
@@ -88,7 +96,7 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float,
     else:
         t_solve = _time.perf_counter()
         with quiet(not prob.verbose):
-            res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            res = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **lam0)
         t_solve = _time.perf_counter() - t_solve
         stats = dict(solver.stats())
         stats["t_solve"] = t_solve
@@ -126,5 +134,8 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float,
                                                 initial=1.0))))
     report, infeas = diagnose(prob, tr, ba, kept, Vopt, gopt, lbg, ubg, lbx, ubx, success,
                               status, stats, g, pre, bres)
-    return build_solution(prob, tr, Vopt, float(res["f"]), success, status, stats, kept, ba,
-                          report, infeas, bc_residuals)
+    sol = build_solution(prob, tr, Vopt, float(res["f"]), success, status, stats, kept, ba,
+                         report, infeas, bc_residuals)
+    if "lam_x" in res:
+        sol._lam = (np.asarray(res["lam_x"]).ravel(), np.asarray(res["lam_g"]).ravel())
+    return sol

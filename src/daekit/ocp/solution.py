@@ -90,6 +90,7 @@ class OCPSolution:
         self.boundary: BoundaryAnalysis | None = None
         self.method = ""
         self._bc_residuals: tuple[np.ndarray, float] = (np.zeros(0), 1.0)
+        self._lam: tuple[np.ndarray, np.ndarray] | None = None  # IPOPT's multipliers
 
     @classmethod
     def _from_grid(cls, prob, tr, V, f, success, status, stats, kept) -> OCPSolution:

@@ -4,7 +4,8 @@ The axisymmetric body of ``reference-problems.md`` section 7 (I = (1, 1, 1.5),
 w(0) = (1, 0, 2), q(0) = 1): the body rates have the closed form w = (cos t, sin t, 2), the
 kinetic energy is conserved and |q| = 1 is the declared invariant ``unit``.
 
-daekit (``m.invariant(q.q - 1)``; every remedy: none, Baumgarte with one pole, projection,
+daekit (``m.invariant(q.q - 1)``; every remedy: none, Baumgarte with one pole, projection
+by drift tolerance (the default, and ``drift_tol=1e-10`` on the integrated state, timed once),
 dummy derivatives) against hand-written expert code on the explicit 7-state ODE in raw CasADi
 (CVODES, BDF, the same tolerances, built once):
 
@@ -79,8 +80,9 @@ def main() -> None:
     has_drift_tol = "drift_tol" in inspect.signature(dk.simulate).parameters
     runs = [("daekit, none", None, "differentiate", {}),
             ("daekit, baumgarte (pole -1)", "baumgarte", "differentiate", {"poles": (-1.0,)}),
-            ("daekit, projection", "projection", "differentiate",
-             {"drift_tol": 1e-10} if has_drift_tol else {}),
+            ("daekit, projection (default drift_tol)", "projection", "differentiate", {}),
+            ("daekit, projection (drift_tol 1e-10)", "projection", "differentiate",
+             {"drift_tol": 1e-10, "project_output": False} if has_drift_tol else {}),
             ("daekit, dummy derivatives", "dummy_derivatives", "dummy_derivatives", {})]
     for label, stab, method, kw in runs:
         r = dk.reduce_index(inv.rigid_body(), method=method, point=fixed)
@@ -89,10 +91,11 @@ def main() -> None:
         def run(r=r, init=init, stab=stab, kw=kw):
             return dk.simulate(r, t, init, stabilization=stab, rtol=tol, atol=tol, **kw)
 
-        run()  # builds the integrators
-        wall, tr = best_of(run)
-        rows.append((label + (" (drift_tol 1e-10)" if kw.get("drift_tol") else ""), wall,
-                     int(tr.stats.get("steps", 0)), *errors(t, tr["q"], tr["w"])))
+        slow = bool(kw.get("drift_tol"))
+        if not slow:
+            run()  # builds the integrators
+        wall, tr = best_of(run, repeat=1 if slow else REPEAT)
+        rows.append((label, wall, int(tr.stats.get("steps", 0)), *errors(t, tr["q"], tr["w"])))
 
     # hand-written, plain: one CVODES run over the grid
     F = ca.integrator("plain", "cvodes", hand_written(t, tol), 0.0, list(t[1:]), opts)

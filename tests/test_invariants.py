@@ -316,3 +316,19 @@ def test_periodic_quaternion_is_redundant_with_its_norm():
     assert (ba.n_conditions, ba.rank) == (13 + 6, 15)
     with pytest.raises(dk.OCPError, match="up_to_sign names"):
         ocp.final({"w": [0, 0, 0]}, up_to_sign="q")
+
+
+def test_the_guide_section_runs_and_says_true_things():
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "guide.md").read_text()
+    sec = text[text.index("## 8. ODEs with invariants"):text.index("## References")]
+    code = "\n".join(re.findall(r"```python\n(.*?)```", sec, flags=re.S))
+    ns: dict = {}
+    exec("import casadi as ca, numpy as np\nimport daekit as dk\n" + code, ns)  # noqa: S102
+    assert ns["rb"].invariant_names == ["unit"]
+    assert ns["start"]["q[3]"] == pytest.approx(0.5, abs=1e-14)
+    assert ns["start"].determined == ["q[3]"] and "up to its sign" in ns["start"].notes[0]
+    assert ns["tr_dd"].max_invariant()["unit"] < 1e-12
+    assert dk.analyze(ns["body"]).dof == 6

@@ -184,8 +184,8 @@ def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, fl
         arr = np.repeat(arr, len(elems))
     if arr.size != len(elems):
         raise InitializationError(
-            f"{what}: {key!r} has {len(elems)} element(s) ({', '.join(elems)}) but "
-            f"{arr.size} value(s) were given"
+            f"{what}: {key!r} has {count(len(elems), 'element')} ({', '.join(elems)}) but "
+            f"{count(arr.size, 'value')} {'was' if arr.size == 1 else 'were'} given"
         )
     if not np.all(np.isfinite(arr)):
         raise InitializationError(f"{what}: the value of {key!r} is not finite: {val!r}")
@@ -505,6 +505,7 @@ def initialize(
     # is re-solved from alg at the new x, so that the iteration is Gauss-Newton on x alone
     # (quadratic from a rough guess; a joint step on (x, z) is spoiled by the bilinear terms
     # such as lam * q of mechanical systems)
+    settled = {"ok": False}
     if nz and n_alg == nz:
         key = bool(use_sparse)
         if key not in sc.settle:
@@ -512,7 +513,9 @@ def initialize(
         z_solve = sc.settle[key]
 
         def settle(wv):
-            return z_solve(wv, args)
+            out = z_solve(wv, args)
+            settled["ok"] = out is not wv  # False where d alg / d z was singular (unchanged)
+            return out
     else:
         def settle(wv):
             return wv
@@ -545,6 +548,15 @@ def initialize(
     inv_z, v_z = sc.z_dependent(nx)
     with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
     extra = {}
+    decoupled = bool(nz) and n_alg == nz and not with_alg
+
+    def gfun_x(_wx):
+        """The guesses' values and Jacobian on x (decoupled steps; evaluated at the current
+        full point, set by the loop)."""
+        Gv, JG = gfun(current["w"])
+        return Gv, JG[:, :nx]
+
+    current: dict = {}
 
     def curvature(wv, y):
         """Curvature of the Lagrangian ``f + y^T h`` beyond Gauss--Newton's ``J_G^T J_G``:
@@ -595,11 +607,31 @@ def initialize(
                     "current point; give guesses closer to a consistent state"
                 )
             use_c = gval.size and y is not None and np.any(y)
-            candidates = ["newton", "gn"] if use_c else ["gn"]
             normh = np.linalg.norm(hv)
-            for kind in candidates:
+            # decoupled: neither the invariants nor the used values depend on z, and alg holds
+            # (z was re-solved): the step is found on x alone, without alg's rows (the
+            # densest) and z's columns in the KKT system; z follows by re-solving alg
+            dec = (decoupled and settled["ok"]
+                   and float(np.max(np.abs(hv[:n_alg]), initial=0.0)) <= 1e-8 * scale)
+            current["w"] = wv
+            # first choice, then the fallback when the line search cuts it below 1/8: the
+            # joint Gauss-Newton step on (x, z)
+            first = ("newton" if use_c else "gn", dec)
+            candidates = [first] if first == ("gn", False) else [first, ("gn", False)]
+            for kind, dec_k in candidates:
                 C = curvature(wv, y) if kind == "newton" else None
-                if use_sparse:
+                if dec_k:
+                    Jx, hx = J[n_alg:, :nx], hv[n_alg:]
+                    Cx = C[:nx, :nx] if C is not None else None
+                    if use_sparse:
+                        Jx = Jx.tocsc()
+                        Cx = Cx.tocsc() if Cx is not None else None
+                        dx_, yx = _gn_step_sparse(hx, Jx, gfun_x, wv[:nx], gval, nx, Cx)
+                    else:
+                        dx_, yx = _gn_step(hx, Jx, gfun_x, wv[:nx], gval, nx, 0, Cx)
+                    d = np.concatenate([dx_, np.zeros(nz)])
+                    yn = np.concatenate([np.zeros(n_alg), yx])
+                elif use_sparse:
                     d, yn = _gn_step_sparse(hv, J, gfun, wv, gval, metric_nx, C)
                 else:
                     d, yn = _gn_step(hv, J, gfun, wv, gval, metric_nx, n_alg, C)
@@ -616,7 +648,7 @@ def initialize(
                         if gval.size and objective(wn) + rho * float(np.sum(np.abs(hn))) < phi:
                             break
                     alpha *= 0.5
-                if alpha >= 0.125 or kind == "gn":
+                if alpha >= 0.125:
                     break
             y = yn
             step = np.max(np.abs(wn - wv)) if n else 0.0
@@ -838,6 +870,8 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
+            if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
+                return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
                 break
             try:

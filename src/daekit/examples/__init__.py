@@ -33,6 +33,7 @@ from .classic import (
     transistor_amplifier,
 )
 from .failures import f1, f2, f3, gear_petzold, iwata_nonlinear, oki_linear
+from .impacts import CRANE_END_STOP_INIT, crane_end_stop, pendulum_wall
 from .invariants import (
     lifted_pendulum,
     lifted_square,
@@ -62,6 +63,9 @@ from .mechanisms import (
 from .pendula import chained_pendula, pendulum_planar, planar_chain
 
 __all__ = [
+    "CRANE_END_STOP_INIT",
+    "crane_end_stop",
+    "pendulum_wall",
     "DELTA_ROBOT_DATA",
     "lagrangian_delta_robot",
     "lagrangian_delta_robot_home",
@@ -139,6 +143,13 @@ def catalog() -> dict[str, CatalogEntry]:
         "delta_robot": CatalogEntry(delta_robot, 3, 6, gros + ", L4"),
         "pendulum_planar": CatalogEntry(
             pendulum_planar, 3, 2, "Hairer & Wanner, Solving ODEs II, ch. VII"
+        ),
+        "pendulum_wall": CatalogEntry(
+            pendulum_wall, 3, 2, "planar pendulum with a wall at x = 0 (restitution 0.8)"
+        ),
+        "crane_end_stop": CatalogEntry(
+            lambda: crane_end_stop().model(), 3, 4,
+            "overhead crane: trolley end stop (restitution 0.5), terminal at rest",
         ),
         "chained_pendula": CatalogEntry(
             lambda: chained_pendula(3), 7, 6, "Pryce, BIT 41 (2001); DAESA (p = 3)"

@@ -134,7 +134,8 @@ def simulate(
     poles=(-1.0, -1.0),
     drift_tol: float | None = None,
     monitors: Sequence = (),
-    project_output: bool = True,
+    project_output: bool | None = None,
+    events: bool = True,
     **options,
 ) -> Trajectory:
     """Simulate a reduced (index-1) DAE and return its :class:`Trajectory`.
@@ -178,13 +179,20 @@ def simulate(
     drift_tol : float, optional
         For ``"projection"``: the largest ``|invariant|`` tolerated; default
         :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``.
-    project_output : bool
+    project_output : bool, optional
         For ``"projection"``: also project the recorded output points onto the manifold
         (without touching the integration, which projects only when ``drift_tol`` is crossed),
-        so the returned values satisfy the invariants to rounding (default True;
-        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had).
+        so the returned values satisfy the invariants to rounding. Default: where it is cheap
+        (``nx + nz + invariants <= 96``: batched dense Gauss--Newton); on larger systems the
+        recorded points keep the integration's drift, below ``drift_tol``.
+        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had.
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
+    events : bool
+        Honour the model's events (:meth:`daekit.Model.event`) and stop at the switches of its
+        equations (``if_else``, ``fabs``, ...); see :mod:`daekit.simulate.events`, whose
+        keywords ``event_spacing``, ``zeno_count``, ``zeno_window`` and ``max_events`` may be
+        given here. ``False`` integrates the equations as they are.
     **options
         Passed to the CasADi IDAS integrator (e.g. ``max_num_steps``). For an index-2 system
         (``dk.ggl(r)``) ``suppress_algebraic=True`` is the default.
@@ -222,6 +230,14 @@ def simulate(
                 f"simulate: method='rattle' keeps the constraints by construction and takes no "
                 f"stabilization (got {stabilization!r}); drop stabilization= or use method='idas'"
             )
+        if events and getattr(getattr(r, "model", None), "events", None):
+            from .events import simulate_rattle_events
+
+            traj = simulate_rattle_events(r, t, init, inputs=inputs, params=params,
+                                          progress=progress, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
         traj = simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,
@@ -231,6 +247,27 @@ def simulate(
         return traj
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
+    event_keys = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
+    if events and not monitors:
+        from .events import has_events, simulate_events
+
+        if has_events(r):
+            if isinstance(stabilization, str) and stabilization.lower() == "none":
+                stabilization = None
+            if stabilization not in STABILIZATIONS:
+                raise InputError(
+                    f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
+                    "'projection' or 'dummy_derivatives'"
+                )
+            check_grid(t)
+            traj = simulate_events(r, t, init, inputs=inputs, params=params,
+                                   stabilization=stabilization, rtol=rtol, atol=atol,
+                                   poles=poles, progress=progress, drift_tol=drift_tol,
+                                   project_output=project_output, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
+    options = {k: v for k, v in options.items() if k not in event_keys}
     if isinstance(stabilization, str) and stabilization.lower() == "none":
         stabilization = None
     if stabilization not in STABILIZATIONS:
@@ -303,6 +340,8 @@ def simulate(
         res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
                      label="projection").run()
         nproj = proj.stats["projections"]
+        if project_output is None:
+            project_output = proj.nx + proj.nz + proj.nh <= 96
         if project_output:
             # the recorded rows onto the manifold too (read-only: the integration is not
             # touched), so the results satisfy the invariants to rounding

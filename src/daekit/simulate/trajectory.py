@@ -63,6 +63,9 @@ class Trajectory:
         One name per invariant column, e.g. ``["rod", "d/dt rod"]``.
     stats : dict, optional
         Solver statistics (``steps``, ``residual_evaluations``, ``wall_time``, ...).
+    events : list of (float, str), optional
+        Events that fired, ``(t, name)`` in time order. At an event with a jump the trajectory
+        has two rows at that time: the values just before and just after it.
 
     Attributes
     ----------
@@ -83,8 +86,10 @@ class Trajectory:
         invariants=None,
         invariant_names: Iterable[str] | None = None,
         stats: dict | None = None,
+        events: Iterable[tuple[float, str]] | None = None,
     ) -> None:
         self.t = np.asarray(t, dtype=float).ravel()
+        self.events: list[tuple[float, str]] = [(float(te), str(n)) for te, n in (events or [])]
         n = self.t.size
         self.values: dict[str, np.ndarray] = {}
         for k, v in values.items():
@@ -100,7 +105,6 @@ class Trajectory:
         inv = np.asarray(invariants, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))
         self.invariants = inv
         self.stats = dict(stats or {})
-        self.events = []
 
     # ------------------------------------------------------------------ access
     def __getitem__(self, name: str) -> np.ndarray:
@@ -206,6 +210,7 @@ class Trajectory:
             self.invariants[:stop],
             self.invariant_names,
             self.stats,
+            [e for e in self.events if self.t.size and stop > 0 and e[0] <= self.t[:stop][-1]],
         )
 
     # ------------------------------------------------------------------ export and figures

@@ -208,6 +208,8 @@ class Model:
         self.t = ca.SX.sym("t")
         self.variables: dict[str, Variable] = {}
         self.equations: list[Equation] = []
+        #: declared invariants (:meth:`invariant`): ``expr = 0`` along solutions starting on it
+        self.declared_invariants: list[Equation] = []
         # element hash -> (variable, element index, derivative order)
         self._lookup: dict[int, tuple[Variable, int, int]] = {}
         self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
@@ -336,7 +338,7 @@ class Model:
             name = f"eq{len(self.equations) + 1}"
         if not isinstance(name, str) or not _NAME_RE.match(name):
             raise ModelError(f"model {self.name!r}: {name!r} is not a valid equation name")
-        if any(e.name == name for e in self.equations):
+        if any(e.name == name for e in self.equations + self.declared_invariants):
             raise ModelError(f"model {self.name!r}: the equation name {name!r} is used twice")
         if isinstance(expr, (list, tuple)):
             try:
@@ -391,6 +393,57 @@ class Model:
             )
         self.equations.append(Equation(name, sx))
         self._cache.clear()
+        return sx
+
+    def invariant(self, expr, name: str | None = None) -> ca.SX:
+        """Declare that ``expr = 0`` holds along the model's exact solutions once it holds at
+        the start (a unit quaternion's ``ca.dot(q, q) - 1``, a lifted state's ``w - x**2``).
+
+        A vector ``expr`` declares one invariant per element (``name[0]``, ``name[1]``, ...).
+        The claim is checked when the model is reduced (:func:`daekit.reduce_index`): the time
+        derivative of ``expr`` along the dynamics must vanish where ``expr = 0`` (and the
+        model's own consistency conditions) hold, else a :class:`ModelError` names the
+        invariant and shows the residual of its derivative. Declared invariants then go where
+        the found consistency conditions go: ``r.invariants``, ``initialize`` (held at ``t0``,
+        one degree of freedom less each), the projection and Baumgarte remedies, the
+        trajectory's invariants, and the OCP (imposed at ``t = 0`` only).
+
+        Returns the expression as an SX column.
+
+        >>> import casadi as ca, daekit as dk
+        >>> m = dk.Model("rotation")
+        >>> x = m.state("x", 2)
+        >>> _ = m.equation(m.der(x) - ca.vertcat(-x[1], x[0]), name="rotate")
+        >>> _ = m.invariant(ca.dot(x, x) - 1, name="circle")
+        >>> dk.reduce_index(m).invariant_names
+        ['circle']
+        """
+        if name is None:
+            name = f"invariant{len(self.declared_invariants) + 1}"
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise ModelError(f"model {self.name!r}: {name!r} is not a valid invariant name")
+        if any(e.name == name for e in self.equations + self.declared_invariants):
+            raise ModelError(
+                f"model {self.name!r}: the name {name!r} is already used by an equation or "
+                "an invariant; give the invariant another name"
+            )
+        n_before = len(self.equations)
+        try:
+            sx = self.equation(expr, name=name)  # the same conversion and symbol checks
+        except ModelError as exc:
+            raise ModelError(str(exc).replace(f"equation {name!r}", f"invariant {name!r}")) from None
+        finally:
+            del self.equations[n_before:]
+            self._cache.clear()
+        known = {self.t.element_hash()} | {
+            h for h, (var, _i, _o) in self._lookup.items() if var.kind in ("control", "parameter")}
+        if all(s.element_hash() in known for s in ca.symvar(sx)):
+            raise ModelError(
+                f"model {self.name!r}, invariant {name!r} involves no unknown of the model "
+                "(only time, inputs or parameters): it constrains nothing; write it in terms "
+                "of the states"
+            )
+        self.declared_invariants.append(Equation(name, sx))
         return sx
 
     def _check_symbols(self, sx: ca.SX, where: str) -> None:

@@ -34,6 +34,13 @@ from .classic import (
 )
 from .failures import f1, f2, f3, gear_petzold, iwata_nonlinear, oki_linear
 from .impacts import CRANE_END_STOP_INIT, crane_end_stop, pendulum_wall
+from .invariants import (
+    lifted_pendulum,
+    lifted_square,
+    quadrotor,
+    quadrotor_yaw_ocp,
+    rigid_body,
+)
 from .lecture import (
     DELTA_GAMMA,
     delta_robot,
@@ -85,6 +92,11 @@ __all__ = [
     "gear_petzold",
     "iwata_nonlinear",
     "jay",
+    "lifted_pendulum",
+    "lifted_square",
+    "quadrotor",
+    "quadrotor_yaw_ocp",
+    "rigid_body",
     "l1",
     "l2",
     "l3",
@@ -153,4 +165,12 @@ def catalog() -> dict[str, CatalogEntry]:
         "arevalo": CatalogEntry(arevalo, 3, 2, "E3: C. Arevalo (1995), particle on a circle"),
         "chemakzo": CatalogEntry(chemakzo, 1, 5, testset + ", chemakzo"),
         "transistor_amplifier": CatalogEntry(transistor_amplifier, 1, 5, testset + ", transamp"),
+        "rigid_body": CatalogEntry(
+            rigid_body, 0, 6, "free rigid body, unit quaternion (reference-problems.md, sec. 7)"
+        ),
+        "lifted_pendulum": CatalogEntry(
+            lifted_pendulum, 0, 2, "pendulum lifted to (sin, cos): Hairer & Wanner, ch. VII"
+        ),
+        "lifted_square": CatalogEntry(lifted_square, 0, 1, "x' = x^2 lifted with w = x^2"),
+        "quadrotor": CatalogEntry(quadrotor, 0, 12, "quadrotor, quaternion attitude"),
     }

@@ -111,13 +111,33 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndar
     if arr.size == r.nx:
         x0 = arr
         z0 = system.solve_z(t0, x0, np.zeros(r.nz), sig.value(t0), pv)
+        _check_array_start(r, t0, x0, z0, sig.value(t0), pv)
         return x0, z0
     if arr.size == r.nx + r.nz:
+        _check_array_start(r, t0, arr[: r.nx], arr[r.nx:], sig.value(t0), pv)
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
         f"of the {count(r.nx, 'state')}; got {count(arr.size, 'number')}"
     )
+
+
+def _check_array_start(r, t0, x0, z0, u0, pv, rtol: float = 1e-6) -> None:
+    """An initial state given as an array must satisfy the consistency conditions: an index-1
+    system started off them integrates a different (drifting) solution without a word."""
+    if not r.invariants.numel():
+        return
+    inv = np.asarray(ca.Function("inv0", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(
+        t0, x0, z0, u0, pv), dtype=float).ravel()
+    scale = 1.0 + np.max(np.abs(x0), initial=0.0)
+    bad = np.nonzero(~(np.abs(inv) <= rtol * scale))[0]
+    if bad.size:
+        shown = ", ".join(f"{r.invariant_names[i]} = {inv[i]:.3g}" for i in bad[:5])
+        raise InputError(
+            f"simulate: the initial state given as an array violates the consistency "
+            f"conditions ({shown}); an index-1 system started there drifts from the start. "
+            "Make it consistent with dk.initialize(r, guess=..., fixed=...) and pass the result"
+        )
 
 
 def simulate(

@@ -140,7 +140,7 @@ class InitialValues:
     determined: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
-        from .simulate.trajectory import expand_name
+        from .model import expand_name
 
         elems = expand_name(name, self.values, "these initial values")
         if len(elems) == 1 and ("[" in name or not elems[0].endswith("]")):
@@ -158,7 +158,7 @@ class InitialValues:
 def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, float]]:
     """(element name, row in the system's variable vector, value) for each element meant by
     ``key``."""
-    from .simulate.trajectory import NameNotFoundError, expand_name
+    from .model import NameNotFoundError, expand_name
 
     pnames = list(getattr(r, "p_names", []) or [])
     if pnames and isinstance(key, str):
@@ -363,8 +363,8 @@ def initialize(
     >>> init.fixed, len(init.free)        # one more value (e.g. p[1]) could be fixed
     (['v[0]'], 1)
     """
+    from .inputs import InputSignal, resolve_params
     from .reduced import ReducedDAE
-    from .simulate.inputs import InputSignal, resolve_params
 
     notes: list[str] = []
     if not isinstance(r, ReducedDAE):  # a Model or LagrangianSystem: reduced (and noted)

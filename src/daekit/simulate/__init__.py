@@ -4,9 +4,9 @@ RATTLE, and the Trajectory.
 >>> from daekit.simulate import simulate, Trajectory
 """
 
+from ..inputs import InputError
 from .dispatch import NothingToStabilizeWarning, simulate
 from .driver import Action, Driver, Firing, Monitor, Segment
-from .inputs import InputError
 from .projection import Projector
 from .trajectory import NameNotFoundError, Trajectory, load_trajectory
 

@@ -17,12 +17,12 @@ from collections.abc import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from ..inputs import InputError, InputSignal, resolve_params
 from ..reduced import ReducedDAE
 from ..reduction.accept import as_reduced
 from ..wording import count
 from .driver import Driver
 from .idas import run_algebraic, run_idas
-from .inputs import InputError, InputSignal, resolve_params
 from .projection import DriftMonitor, Projector, default_drift_tol
 from .system import system_for
 from .trajectory import Trajectory
@@ -221,7 +221,7 @@ def simulate(
     ------
     SimulationError
         When IDAS fails: ``.t`` is the time, ``.trajectory`` the solution so far.
-    daekit.simulate.inputs.InputError
+    daekit.inputs.InputError
         On bad inputs (a NaN from an input names that input).
 
     Example

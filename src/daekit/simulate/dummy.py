@@ -26,8 +26,8 @@ import math
 import casadi as ca
 import numpy as np
 
+from ..inputs import InputSignal
 from .driver import Action, Driver, Firing, Monitor
-from .inputs import InputSignal
 from .system import System, fast_call, system_for
 from .trajectory import Trajectory
 

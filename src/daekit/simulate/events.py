@@ -545,8 +545,8 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     >>> bool(abs(traj["h"][-1] - (1 - 9.81 * (1 - 2 * 0.45152364) ** 2 / 2)) < 1e-7)
     True
     """
+    from ..inputs import InputSignal, resolve_params
     from ..reduction import baumgarte, reselect, selection_condition
-    from .inputs import InputSignal, resolve_params
 
     if run is None:
         raise TypeError("simulate_events needs run=, the simulation of one segment "
@@ -953,7 +953,7 @@ def simulate_rattle_events(r, t, init, params=None, inputs=None, dt: float | Non
     >>> round(tr.events[0][0], 5)       # exact: 0.5919604869
     0.59196
     """
-    from .inputs import resolve_params
+    from ..inputs import resolve_params
     from .rattle import rattle_stepper, simulate_rattle
 
     if unknown:

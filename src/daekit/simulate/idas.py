@@ -30,7 +30,7 @@ def run_idas(system: System, tg, x0, z0, pv, monitors=(), progress: bool = False
 
     >>> import casadi as ca, numpy as np
     >>> from daekit.reduced import ReducedDAE
-    >>> from daekit.simulate.inputs import InputSignal
+    >>> from daekit.inputs import InputSignal
     >>> from daekit.simulate.system import system_for
     >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
     >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -x, ca.SX(0, 1),

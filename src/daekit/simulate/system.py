@@ -17,7 +17,7 @@ Example
 -------
 >>> import casadi as ca, numpy as np
 >>> from daekit.reduced import ReducedDAE
->>> from daekit.simulate.inputs import InputSignal
+>>> from daekit.inputs import InputSignal
 >>> from daekit.simulate.system import system_for
 >>> t = ca.SX.sym("t"); x = ca.SX.sym("x"); z = ca.SX.sym("z")
 >>> r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), -z, z - x, ca.SX(0, 1), [], ["x"],
@@ -41,7 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._cio import c_output, failure_time
-from .inputs import InputError, InputSignal
+from ..inputs import InputError, InputSignal
 from .trajectory import Trajectory
 
 __all__ = ["System", "system_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",

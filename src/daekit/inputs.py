@@ -15,9 +15,9 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
-from ..errors import DaekitError, ModelError
-from ..model import element_name, parse_name
-from ..wording import count
+from .errors import DaekitError, ModelError
+from .model import NameNotFoundError, element_name, expand_name, parse_name
+from .wording import count
 
 __all__ = ["InputSignal", "InputError", "resolve_params"]
 
@@ -298,7 +298,6 @@ def resolve_params(r, params: Mapping | None) -> np.ndarray:
                          f"{count(pv.size, 'value')}")
     if not params:
         return pv
-    from .trajectory import NameNotFoundError, expand_name
 
     index = {n: i for i, n in enumerate(r.p_names)}
     for key, val in params.items():

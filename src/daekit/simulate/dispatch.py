@@ -55,8 +55,13 @@ def check_grid(t) -> np.ndarray:
     return tg
 
 
-def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndarray, np.ndarray]:
-    """Consistent ``(x0, z0)`` from ``init`` (InitialValues, a dict of guesses, or an array)."""
+def initial_state(r, init, t0, inputs, params, sig, pv, system,
+                  off_manifold_ok: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Consistent ``(x0, z0)`` from ``init`` (InitialValues, a dict of guesses, or an array).
+
+    An array that violates the consistency conditions is refused (an index-1 system started
+    there drifts from the start, silently) unless ``off_manifold_ok`` (Baumgarte: its poles
+    pull such a start back to the manifold, which is what one may want to watch)."""
     from ..initialize import InitialValues, initialize
 
     if init is None:
@@ -111,10 +116,12 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndar
     if arr.size == r.nx:
         x0 = arr
         z0 = system.solve_z(t0, x0, np.zeros(r.nz), sig.value(t0), pv)
-        _check_array_start(r, t0, x0, z0, sig.value(t0), pv)
+        if not off_manifold_ok:
+            _check_array_start(r, t0, x0, z0, sig.value(t0), pv)
         return x0, z0
     if arr.size == r.nx + r.nz:
-        _check_array_start(r, t0, arr[: r.nx], arr[r.nx:], sig.value(t0), pv)
+        if not off_manifold_ok:
+            _check_array_start(r, t0, arr[: r.nx], arr[r.nx:], sig.value(t0), pv)
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
@@ -171,7 +178,9 @@ def simulate(
         steps (the result does not depend on how many there are).
     init : InitialValues, dict or array
         Consistent initial values from :func:`daekit.initialize` (a dict is taken as guesses for
-        it; an array as the state vector ``x0``, ``z0`` then solved from ``alg = 0``).
+        it; an array as the state vector ``x0``, ``z0`` then solved from ``alg = 0``). An array
+        must satisfy the consistency conditions (to 1e-6 relative), except with
+        ``stabilization="baumgarte"``, whose poles pull an inconsistent start back.
     inputs : dict, optional
         ``{control name: f}`` with ``f`` a Python callable of ``t`` or a CasADi SX expression of
         time (``r.t`` or the model's ``m.t``). Input derivatives the reduction needs are
@@ -333,7 +342,8 @@ def simulate(
     sig = InputSignal(r_int, inputs)
     U = sig.values(tg)  # NaN check on the grid (names the input)
     system = system_for(r_int, sig, rtol, atol, options)
-    x0, z0 = initial_state(r_int, init, float(tg[0]), inputs, params, sig, pv, system)
+    x0, z0 = initial_state(r_int, init, float(tg[0]), inputs, params, sig, pv, system,
+                           off_manifold_ok=stabilization == "baumgarte")
     if not (np.all(np.isfinite(x0)) and np.all(np.isfinite(z0))):
         raise InputError("simulate: the initial values contain NaN or infinity")
 

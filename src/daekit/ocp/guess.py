@@ -210,6 +210,9 @@ BLEND_NODES = 51
 #: afford; measured on Betts 10.103 with the minimal index-1 form: 815 IPOPT iterations to a
 #: far worse local optimum without it, 13 to the published one with it).
 BLEND_LAGRANGE = 1e-3
+#: Symbolic type of the blend NLP ("SX": expanded; "MX": one mapped model call, cheaper to
+#: build but measured slower overall on the cart-pole, 101 blend iterations).
+BLEND_SYMBOLIC = "SX"
 
 
 def _final_miss(prob, x, z, w, p, T) -> float:
@@ -240,9 +243,10 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
     K = ts.size
     if K < 3 or a.nx == 0:
         return None
-    X = ca.SX.sym("X", a.nx, K)
-    Z = ca.SX.sym("Z", a.nz, K)
-    Wv = ca.SX.sym("W", a.nw, K)
+    S = ca.MX if BLEND_SYMBOLIC == "MX" else ca.SX
+    X = S.sym("X", a.nx, K)
+    Z = S.sym("Z", a.nz, K)
+    Wv = S.sym("W", a.nw, K)
     W0 = np.asarray(Ws, float).reshape(K, a.nw).T
     sc = np.maximum(1.0, np.maximum(np.abs(x0), np.abs(xe)))
     P = np.repeat(np.reshape(p, (-1, 1)), K, 1)

@@ -100,8 +100,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
                               preference=prob.bc_pref, others=[at_a], forced=list(forced))
         ba.ranks = probe.ranks
     else:
-        ba = analyze_boundary(labels, *at_a, preference=prob.bc_pref, others=at_b,
-                              forced=list(forced))
+        ba = probe  # the same call (it returns a new record; computed once)
     ba.preference = list(prob.bc_pref)
     ba.forced = [int(i) for i in forced]
     # the manifold counts w as free directions; report the state-space dimension

@@ -152,7 +152,7 @@ def make_guess(prob, guess) -> Guess:
         grid = tuple(float(v) for v in ((np.arange(N).reshape(-1, 1) + tau) / N).ravel())
         try:
             with quiet():
-                whole = sim.interval(x, z, w_at(0.5 * T / N), 0.0, T, grid=grid)
+                whole = sim.horizon(x, z, w_at(0.5 * T / N), T, grid)
         except RuntimeError:
             whole = None
     with quiet():  # SUNDIALS' messages on a failed interval (set up once, not per interval)
@@ -424,9 +424,16 @@ class _GuessSimulator:
         return z if np.max(np.abs(r), initial=0.0) < 1e-8 * max(1.0, float(np.max(np.abs(z)))) \
             else None
 
-    def interval(self, x, z, w, tk: float, h: float, grid: tuple | None = None):
-        """``(X, Z)`` at the points ``tk + h tau`` (``tk + h grid`` when ``grid`` is given);
-        RuntimeError when the integration fails."""
+    def interval(self, x, z, w, tk: float, h: float):
+        """``(X, Z)`` at the points ``tk + h tau``; RuntimeError when the integration fails."""
+        return self._integrate(x, z, w, tk, h, None)
+
+    def horizon(self, x, z, w, T: float, grid: tuple):
+        """``(X, Z)`` at the times ``T grid`` of one integration from ``t = 0`` with the
+        constant control ``w``; RuntimeError when it fails."""
+        return self._integrate(x, z, w, 0.0, T, grid)
+
+    def _integrate(self, x, z, w, tk: float, h: float, grid: tuple | None):
         a = self.a
         ns = self.tau.size if grid is None else len(grid)
         pv = np.concatenate([w, self.p, [tk, h]])

@@ -195,11 +195,13 @@ def main(repeat: int = 3) -> None:
         rows.append((name, sol.objective, J_op, rel, sol.stats["iter_count"], it_op, best_dk,
                      best_op, best_gv, given.stats["iter_count"]))
     print(f"{'problem':9s} {'daekit J':>16s} {'Opti J':>16s} {'rel diff':>9s} {'it dk':>6s} "
-          f"{'it Opti':>7s} {'daekit s':>9s} {'Opti s':>8s} {'ratio':>6s} {'CPU ratio':>9s} "
+          f"{'it Opti':>7s} {'daekit s':>9s} {'Opti s':>8s} {'ratio':>6s} {'dk CPU':>7s} "
+          f"{'Opti CPU':>8s} {'CPU ratio':>9s} "
           f"{'given: it':>9s} {'ratio':>6s} {'CPU':>5s}")
     for name, Jd, Jo, rel, itd, ito, td, to, tg, itg in rows:
         print(f"{name:9s} {Jd:16.10f} {Jo:16.10f} {rel:9.1e} {itd:6d} {ito:7d} {td[0]:9.3f} "
-              f"{to[0]:8.3f} {td[0] / to[0]:6.2f} {td[1] / to[1]:9.2f} {itg:9d} "
+              f"{to[0]:8.3f} {td[0] / to[0]:6.2f} {td[1]:7.3f} {to[1]:8.3f} {td[1] / to[1]:9.2f} "
+              f"{itg:9d} "
               f"{tg[0] / to[0]:6.2f} {tg[1] / to[1]:5.2f}")
     print("daekit: everything from OCP(...) to the solution; Opti: build + solve of the same "
           "NLP, vectorized, the faster of expand=True (SX) and MX, daekit's guess and IPOPT "

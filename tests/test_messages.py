@@ -18,3 +18,22 @@ def test_unknown_in_no_equation_is_named_without_an_empty_list():
     assert "'z' appear in no equation" in text
     assert "equations ," not in text and "1 equation," in text
     assert err.value.underdetermined_variables == ["z"]
+
+
+def test_baumgarte_warns_not_on_a_model_without_a_rate_of_its_own():
+    """A point mass sliding freely on a line (x'' = lam, y'' = lam, x + y = 0): the linearized
+    dynamics have only zero eigenvalues, so no pole is 'too fast' for it."""
+    import warnings
+
+    import casadi as ca
+
+    m = dk.Model("slider")
+    q = m.state("q", 2)
+    lam = m.algebraic("lam")
+    m.equation(m.der(q, 2) - ca.vertcat(lam, lam), name="newton")
+    m.equation(q[0] + q[1], name="line")
+    r = dk.reduce_index(m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dk.BaumgarteStiffnessWarning)
+        rb = dk.baumgarte(r, poles=(-50.0, -50.0))
+    assert rb.stabilization == "baumgarte"

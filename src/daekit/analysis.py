@@ -889,7 +889,7 @@ def _explain(a: Analysis) -> str:
     lines = [
         f"Model {a.model_name!r}: {count(n, 'equation')} in {count(n, 'unknown')} "
         f"({n - n_alg} appear differentiated, {n_alg} only algebraically)"
-        + (f", {a.n_inputs} input(s)." if a.n_inputs else "."),
+        + (f", {count(a.n_inputs, 'input')}." if a.n_inputs else "."),
         "",
     ]
     if a.structurally_ok:

@@ -400,7 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--t-end", type=float, default=100.0, help="simulated seconds (default: 100)")
     t.add_argument("--quiet", action="store_true", help="no progress on stderr")
     t.add_argument("--gifs", action="store_true",
-                   help="also write the GIF animations (real time, 480 pixels; a few seconds more)")
+                   help="also write the GIF animations (real time, 480 pixels; 10-20 s more)")
     t.add_argument("--no-animations", action="store_true",
                    help="no GIF animations (the default; overrides --gifs)")
     t.add_argument("--no-ocp", action="store_true", help="skip the optimal control section")

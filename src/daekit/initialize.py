@@ -177,8 +177,8 @@ def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, fl
         arr = np.repeat(arr, len(elems))
     if arr.size != len(elems):
         raise InitializationError(
-            f"{what}: {key!r} has {len(elems)} element(s) ({', '.join(elems)}) but "
-            f"{arr.size} value(s) were given"
+            f"{what}: {key!r} has {count(len(elems), 'element')} ({', '.join(elems)}) but "
+            f"{count(arr.size, 'value')} {'was' if arr.size == 1 else 'were'} given"
         )
     if not np.all(np.isfinite(arr)):
         raise InitializationError(f"{what}: the value of {key!r} is not finite: {val!r}")

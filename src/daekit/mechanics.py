@@ -283,8 +283,8 @@ class LagrangianSystem:
             val = np.atleast_1d(np.asarray(spec[1], dtype=float)).ravel()
             if val.size != sym.numel():
                 raise ModelError(
-                    f"{where}: parameter {pname!r} has {sym.numel()} symbol(s) but "
-                    f"{val.size} value(s)"
+                    f"{where}: parameter {pname!r} has {count(sym.numel(), 'symbol')} but "
+                    f"{count(val.size, 'value')}"
                 )
             self.parameter_groups.append((pname, int(sym.numel()), val))
             psyms.append(sym)

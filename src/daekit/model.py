@@ -539,7 +539,8 @@ class Model:
             raise ModelError(f"model {self.name!r} has no variable {base!r} (known: {known})")
         if idx is not None and idx >= var.size:
             raise ModelError(
-                f"model {self.name!r}: {name!r} is out of range; {base!r} has {var.size} element(s)"
+                f"model {self.name!r}: {name!r} is out of range; {base!r} has "
+                f"{count(var.size, 'element')}"
             )
         if order > 0 and var.kind == "parameter":
             raise ModelError(f"model {self.name!r}: {name!r} is the derivative of a parameter")

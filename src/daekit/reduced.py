@@ -122,7 +122,9 @@ class ReducedDAE:
         return new
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
+        # private caches (``_initialize_cache``, ...) hold local functions and are rebuilt on
+        # first use: not pickled
+        state = {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
         if _casadi_context_open("pickle"):
             return state
         with ca.global_pickle_context():

@@ -229,7 +229,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
              ) -> list[RemedyResult]:
     """Run the tour; print the story and the table, write figures into ``out``.
 
-    ``gifs=True`` also writes the GIF animations (a few seconds more); ``animations`` is the
+    ``gifs=True`` also writes the GIF animations (10-20 s of CPU time more); ``animations`` is the
     older name of the same switch (when given, it wins). ``ocp=False`` skips the optimal
     control section. Returns the table rows (with their trajectories).
 

@@ -65,6 +65,7 @@ import numpy as np
 
 from ..errors import OCPError
 from ..reduced import ReducedDAE
+from ..wording import count
 from .compiled import Problem, compile_problem
 from .consistency import BoundaryAnalysis
 from .problem import Augmented, augment
@@ -104,7 +105,7 @@ def _vec(val, n: int, what: str) -> np.ndarray:
     if arr.size == 1:
         arr = np.full(n, float(arr[0]))
     if arr.size != n:
-        raise OCPError(f"{what}: expected {n} value(s), got {arr.size}")
+        raise OCPError(f"{what}: expected {count(n, 'value')}, got {arr.size}")
     return arr
 
 

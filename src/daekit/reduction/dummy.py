@@ -67,6 +67,7 @@ from ..model import Model
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
+from ..wording import count
 from .differentiate import derivative_name
 from .reduce import (
     _all_symbols,
@@ -136,15 +137,15 @@ def _point_entry(model, name: str, value, size: int) -> np.ndarray:
         arr = np.asarray(value, dtype=float).ravel()
     except (TypeError, ValueError):
         raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] must be numbers ({size} value(s) for "
+            f"model {model.name!r}: point[{name!r}] must be numbers ({count(size, 'value')} for "
             f"{name!r}), got {value!r}"
         ) from None
     if arr.size == 1:
         return np.full(size, float(arr[0]))
     if arr.size != size:
         raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
-            f"{size} element(s); give {size} numbers (or one number for all)"
+            f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
+            f"has {count(size, 'element')}; give {count(size, 'number')} (or one number for all)"
         )
     return arr
 

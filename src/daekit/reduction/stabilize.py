@@ -177,7 +177,9 @@ def baumgarte(
         out.alg = r.alg + ca.mtimes(W, r.invariants)
     fastest = float(np.max(np.abs(_poles(poles))))
     rate = time_scale(r, x, z)
-    if rate is not None and fastest > warn_ratio * max(rate, 1e-12):
+    # a model with no rate of its own (all eigenvalues zero, e.g. a free mass on a constraint)
+    # gives no time scale to compare the poles with: no warning then
+    if rate is not None and rate > 1e-9 and fastest > warn_ratio * rate:
         warnings.warn(
             f"baumgarte: the fastest pole ({fastest:g}) is more than {warn_ratio:g} times faster "
             f"than the model's own fastest rate (about {rate:.3g}); the stabilized system is "

@@ -100,7 +100,7 @@ class InputSignal:
                 sx = ca.repmat(sx, len(elems), 1)
             if sx.numel() != len(elems):
                 raise InputError(
-                    f"inputs: {key!r} has {len(elems)} element(s) but the expression has "
+                    f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
                     f"{sx.numel()}"
                 )
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
@@ -191,8 +191,8 @@ class InputSignal:
                     v = np.repeat(v, n)
                 if v.size != n:
                     raise InputError(
-                        f"input {key!r} returned {v.size} value(s) at t = {t:g}; it has {n} "
-                        "element(s)"
+                        f"input {key!r} returned {count(v.size, 'value')} at t = {t:g}; it has "
+                        f"{count(n, 'element')}"
                     )
                 cache[id(f)] = v
             out[j] = cache[id(f)][k]

@@ -45,17 +45,19 @@ class Progress:
         self.last = -1
         self.drawn = False
 
-    def update(self, t: float) -> None:
-        """Show the fraction of the span reached at time ``t``."""
+    def update(self, t: float, detail: str | None = None) -> None:
+        """Show the fraction of the span reached at ``t`` (a time, or a count such as the
+        samples done of an ensemble); ``detail`` replaces the ``t = ...`` text."""
         if not self.enabled:
             return
         frac = min(max((t - self.t0) / (self.tf - self.t0), 0.0), 1.0)
         pct = int(frac * 100)
-        if pct == self.last:
+        if pct == self.last and detail is None:
             return
         self.last = pct
         bar = "#" * (pct // 4) + "." * (25 - pct // 4)
-        self.out.write(f"\r{self.label} [{bar}] {pct:3d}%  t = {t:.4g}")
+        text = f"t = {t:.4g}" if detail is None else detail
+        self.out.write(f"\r{self.label} [{bar}] {pct:3d}%  {text}")
         self.out.flush()
         self.drawn = True
 

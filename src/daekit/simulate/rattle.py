@@ -522,7 +522,8 @@ def _bind_inputs(
             expr = ca.repmat(expr, len(elems), 1)
         if expr.numel() != len(elems):
             raise SimulationError(
-                f"RATTLE: input {key!r} has {len(elems)} element(s) but {expr.numel()} values"
+                f"RATTLE: input {key!r} has {count(len(elems), 'element')} but "
+                f"{count(expr.numel(), 'value')}"
             )
         for k, i in enumerate(elems):
             vals[i] = expr[k]
@@ -817,7 +818,8 @@ def simulate_rattle(
     """
     if unknown:
         raise ModelError(
-            f"simulate(method='rattle'): unknown option(s) {sorted(unknown)}; RATTLE takes dt, "
+            f"simulate(method='rattle'): unknown {'option' if len(unknown) == 1 else 'options'} "
+            f"{sorted(unknown)}; RATTLE takes dt, "
             "params, inputs, newton_iter, max_newton_iter, tol, init_tol, progress (rtol and "
             "atol do not apply: the step size dt sets the accuracy)"
         )
@@ -989,7 +991,7 @@ def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
             arr = np.repeat(arr, len(elems))
         if arr.size != len(elems) or not np.all(np.isfinite(arr)):
             raise ModelError(
-                f"RATTLE: parameter {key!r} needs {len(elems)} finite value(s), got {val!r}"
+                f"RATTLE: parameter {key!r} needs {count(len(elems), 'finite value')}, got {val!r}"
             )
         pv[elems] = arr
     return pv

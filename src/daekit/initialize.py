@@ -110,7 +110,13 @@ class InitialValues:
         Max |alg|, |invariant| at the solution.
     iterations : int
     notes : list of str
-        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced).
+        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced), and
+        remarks such as a determined value that is fixed only up to its sign (``q[3]`` of a
+        unit quaternion with the other three components fixed: the guess's sign is taken).
+    determined : list of str
+        States (and dummy states) that are not fixed but locally determined by the fixed
+        values and the consistency conditions (unit vectors orthogonal to the null space of
+        their Jacobian; systems below 300 unknowns). Empty when nothing is determined.
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
     """
@@ -131,6 +137,7 @@ class InitialValues:
     notes: list[str] = field(default_factory=list)
     fixed: list[str] = field(default_factory=list)
     dof_names: list[str] = field(default_factory=list)
+    determined: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
         from .simulate.trajectory import expand_name
@@ -498,6 +505,7 @@ def initialize(
     # is re-solved from alg at the new x, so that the iteration is Gauss-Newton on x alone
     # (quadratic from a rough guess; a joint step on (x, z) is spoiled by the bilinear terms
     # such as lam * q of mechanical systems)
+    settled = {"ok": False}
     if nz and n_alg == nz:
         key = bool(use_sparse)
         if key not in sc.settle:
@@ -505,7 +513,9 @@ def initialize(
         z_solve = sc.settle[key]
 
         def settle(wv):
-            return z_solve(wv, args)
+            out = z_solve(wv, args)
+            settled["ok"] = out is not wv  # False where d alg / d z was singular (unchanged)
+            return out
     else:
         def settle(wv):
             return wv
@@ -538,6 +548,15 @@ def initialize(
     inv_z, v_z = sc.z_dependent(nx)
     with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
     extra = {}
+    decoupled = bool(nz) and n_alg == nz and not with_alg
+
+    def gfun_x(_wx):
+        """The guesses' values and Jacobian on x (decoupled steps; evaluated at the current
+        full point, set by the loop)."""
+        Gv, JG = gfun(current["w"])
+        return Gv, JG[:, :nx]
+
+    current: dict = {}
 
     def curvature(wv, y):
         """Curvature of the Lagrangian ``f + y^T h`` beyond Gauss--Newton's ``J_G^T J_G``:
@@ -588,11 +607,31 @@ def initialize(
                     "current point; give guesses closer to a consistent state"
                 )
             use_c = gval.size and y is not None and np.any(y)
-            candidates = ["newton", "gn"] if use_c else ["gn"]
             normh = np.linalg.norm(hv)
-            for kind in candidates:
+            # decoupled: neither the invariants nor the used values depend on z, and alg holds
+            # (z was re-solved): the step is found on x alone, without alg's rows (the
+            # densest) and z's columns in the KKT system; z follows by re-solving alg
+            dec = (decoupled and settled["ok"]
+                   and float(np.max(np.abs(hv[:n_alg]), initial=0.0)) <= 1e-8 * scale)
+            current["w"] = wv
+            # first choice, then the fallback when the line search cuts it below 1/8: the
+            # joint Gauss-Newton step on (x, z)
+            first = ("newton" if use_c else "gn", dec)
+            candidates = [first] if first == ("gn", False) else [first, ("gn", False)]
+            for kind, dec_k in candidates:
                 C = curvature(wv, y) if kind == "newton" else None
-                if use_sparse:
+                if dec_k:
+                    Jx, hx = J[n_alg:, :nx], hv[n_alg:]
+                    Cx = C[:nx, :nx] if C is not None else None
+                    if use_sparse:
+                        Jx = Jx.tocsc()
+                        Cx = Cx.tocsc() if Cx is not None else None
+                        dx_, yx = _gn_step_sparse(hx, Jx, gfun_x, wv[:nx], gval, nx, Cx)
+                    else:
+                        dx_, yx = _gn_step(hx, Jx, gfun_x, wv[:nx], gval, nx, 0, Cx)
+                    d = np.concatenate([dx_, np.zeros(nz)])
+                    yn = np.concatenate([np.zeros(n_alg), yx])
+                elif use_sparse:
                     d, yn = _gn_step_sparse(hv, J, gfun, wv, gval, metric_nx, C)
                 else:
                     d, yn = _gn_step(hv, J, gfun, wv, gval, metric_nx, n_alg, C)
@@ -609,7 +648,7 @@ def initialize(
                         if gval.size and objective(wn) + rho * float(np.sum(np.abs(hn))) < phi:
                             break
                     alpha *= 0.5
-                if alpha >= 0.125 or kind == "gn":
+                if alpha >= 0.125:
                     break
             y = yn
             step = np.max(np.abs(wn - wv)) if n else 0.0
@@ -662,6 +701,10 @@ def initialize(
         if k >= 0:
             wv[k] = v
 
+    determined, notes = [], []
+    if not use_sparse and fixed_items:
+        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names),
+                                        {nm for nm, _, _ in guess_items})
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
@@ -673,7 +716,60 @@ def initialize(
     return InitialValues(
         t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
         list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
+        determined=determined, notes=notes,
     )
+
+
+def _other_sign(wv, i: int, hval, scale: float, iters: int = 12) -> bool:
+    """Whether the equations ``hval(w) = 0`` also hold with ``w[i] = -wv[i]`` (the other
+    values re-solved by a few minimum-norm Gauss--Newton steps from the flipped point)."""
+    w = wv.copy()
+    w[i] = -wv[i]
+    for _ in range(iters):
+        hv, J = hval(w)
+        if not (np.all(np.isfinite(hv)) and np.all(np.isfinite(J))):
+            return False
+        if np.max(np.abs(hv), initial=0.0) <= 1e-10 * scale:
+            return True
+        J = np.array(J, dtype=float)
+        J[:, i] = 0.0  # w[i] stays at the flipped value
+        d = np.linalg.lstsq(J, -hv, rcond=1e-12)[0]
+        d[i] = 0.0
+        w = w + d
+    return False
+
+
+def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
+    """States (and dummy states) not fixed but locally determined: their unit vectors are
+    orthogonal to the null space of the Jacobian of ``[alg; invariants; fixed]``. A determined
+    value whose negative satisfies the equations too (a quaternion component from
+    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it."""
+    J = np.asarray(J, dtype=float)
+    if J.size == 0:
+        return [], []
+    nx = r.nx
+    dummies = set((r.state_selection or {}).get("dummies", []))
+    cand = [(i, nm) for i, nm in enumerate(r.x_names)] + [
+        (nx + j, nm) for j, nm in enumerate(r.z_names) if nm in dummies]
+    _, sv, vt = np.linalg.svd(J, full_matrices=True)
+    rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
+    N = vt[rank:]
+    determined, notes = [], []
+    for i, nm in cand:
+        if nm in fixed or (N.shape[0] and np.linalg.norm(N[:, i]) > 1e-8):
+            continue
+        determined.append(nm)
+        v = float(wv[i])
+        if abs(v) <= 1e-9 * scale:
+            continue
+        if _other_sign(wv, i, hval, scale):
+            whose = "the guess" if nm in guessed else "the starting point"
+            notes.append(
+                f"{nm} = {v:.6g} is determined only up to its sign: {-v:.6g} satisfies the "
+                f"fixed values and the consistency conditions too; the sign of {whose} was "
+                "taken (give a guess of the other sign for the other branch)"
+            )
+    return determined, notes
 
 
 def _qp_min_norm(A, h, H, g) -> np.ndarray:
@@ -774,6 +870,8 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
+            if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
+                return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
                 break
             try:
@@ -948,7 +1046,10 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
     else:
         Jred = Ji[:, :nx]
     sv = np.linalg.svd(Jred, compute_uv=False)
-    rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
+    # relative to the rows before elimination too: rows that alg implies (a dummy-derivative
+    # system's invariants) leave rounding noise, not rank
+    big = max(sv.max(initial=0.0), 1e-6 * float(np.abs(Ji).max(initial=0.0)), 1e-300)
+    rank = int(np.sum(sv > 1e-9 * big))
     colw = np.array([1e-2 if nm in fixed else 1.0 for nm in r.x_names])
     _, _, piv = scipy.linalg.qr(Jred * colw, mode="economic", pivoting=True)
     dependent = set(piv[:rank].tolist())

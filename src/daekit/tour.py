@@ -275,6 +275,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _positions_figure(next(row for row in prow if row.remedy == "projection"),
                       out / "pendulum3d_positions.png")
 
+    # ------------------------------------------------------------------ ODE invariants
+    rows += _invariant_section(out, t, progress)
+
     # ------------------------------------------------------------------ delta robot
     _say("")
     _say("=" * 78)
@@ -314,6 +317,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
         _drift_figure(drow, f"Delta robot, {t_end:g} s, rtol = atol = 1e-6: constraint drift and energy",
                       out / "delta_robot_drift.png")
 
+    # ------------------------------------------------------------------ events and impacts
+    _events_section(out, progress)
+
     # ------------------------------------------------------------------ animations
     if gifs:
         _animations(out, r, init, prow, drow, t_end, progress)
@@ -348,6 +354,81 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     return rows
 
 
+def _invariant_section(out: Path, t: np.ndarray, progress: bool) -> list[RemedyResult]:
+    """The lecture's last slide: an ODE with an invariant drifts like a DAE and takes the same
+    remedies. A free rigid body with a unit quaternion (``m.invariant(q.q - 1)``), the same
+    run length, each remedy; |q|^2 - 1 over time in a figure next to the pendulum's."""
+    import daekit as dk
+    from daekit.examples import invariants as inv
+
+    _say("")
+    _say("=" * 78)
+    _say("1b. ODE invariants: a free rigid body with a unit quaternion, m.invariant(q.q - 1)")
+    _say("=" * 78)
+    m = inv.rigid_body()
+    data = inv.RIGID_BODY_DATA
+    fixed = {"q": list(data["q0"]), "w": list(data["w0"])}
+    rows: list[RemedyResult] = []
+    rates: list[float] = []
+    runs = [("none", None, "differentiate"), ("baumgarte (pole -1)", "baumgarte", "differentiate"),
+            ("projection", "projection", "differentiate"),
+            ("dummy derivatives", "dummy_derivatives", "dummy_derivatives")]
+    for label, stab, method in runs:
+        done = _bar(progress, f"rigid body, {label}")
+        w0 = time.perf_counter()
+        r = dk.reduce_index(m, method=method, point=fixed if method != "differentiate" else None)
+        init = dk.initialize(r, fixed=fixed)  # q fixed in full: redundant with 'unit', accepted
+        tr = dk.simulate(r, t, init, stabilization=stab, rtol=1e-6, atol=1e-6)
+        wall = time.perf_counter() - w0
+        done(wall)
+        energy = inv.rigid_body_energy(tr["w"], data["I"])
+        rate_err = float(np.max(np.abs(tr["w"] - inv.rigid_body_rates(tr.t))))
+        rows.append(RemedyResult("rigid body", label, float(np.max(np.abs(tr.invariant("unit")))),
+                                 float("nan"), float(np.max(np.abs(energy - energy[0]))), wall,
+                                 int(tr.stats.get("steps", 0)), tr, energy))
+        rates.append(rate_err)
+    _say(f"Reduced: {dk.reduce_index(m)}; declared invariant 'unit' = |q|^2 - 1, held at t = 0; "
+         "DOF 6 of 7 states.")
+    _say("")
+    head = (f"{'system':<12} {'remedy':<22} {'max|q.q-1|':>10} {'rate err':>10} "
+            f"{'energy err':>10} {'wall [s]':>9} {'steps':>8}")
+    _say(head)
+    _say("-" * len(head))
+    for row, er in zip(rows, rates, strict=True):
+        _say(f"{row.system:<12} {row.remedy:<22} {row.max_c:10.2e} {er:10.2e} "
+             f"{row.energy_error:10.2e} {row.wall_time:9.2f} {row.steps:8d}")
+    _say("(rate err: max |w - w_exact| against the closed form w = (cos t, sin t, 2); no "
+         "velocity-level invariant here: |q|^2 = 1 is first order, so Baumgarte has one pole, "
+         "c' = -c, and dummy derivatives make one component of q algebraic, re-selected as "
+         "the components pass through zero.)")
+    _invariant_figure(rows, out / "rigid_body_drift.png")
+    return rows
+
+
+def _invariant_figure(rows: list[RemedyResult], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for row in rows:
+        tr = row.trajectory
+        axes[0].semilogy(tr.t, np.maximum(np.abs(tr.invariant("unit")), 1e-17), label=row.remedy,
+                         lw=1)
+        axes[1].semilogy(tr.t, np.maximum(np.abs(row.energy - row.energy[0]), 1e-17),
+                         label=row.remedy, lw=1)
+    axes[0].set_ylabel("| |q|^2 - 1 |")
+    axes[1].set_ylabel("|E - E(0)|")
+    axes[1].set_xlabel("t [s]")
+    axes[0].set_title("Rigid body with a unit quaternion: drift of the declared invariant")
+    axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    for ax in axes:
+        ax.grid(True, which="major", alpha=0.3)
+    fig.tight_layout()
+    _save(fig, path, dpi=110)
+
+
 def _ocp_section(out: Path, progress: bool) -> None:
     from daekit.examples import ocp_examples
 
@@ -378,6 +459,64 @@ def _ocp_section(out: Path, progress: bool) -> None:
          f"({naive.stats.get('return_status')}): the redundant conditions make the constraint "
          "Jacobian rank deficient.")
     ocp_examples.pendulum3d_periodic_figure(sol, str(out / "pendulum3d_periodic_ocp.png"))
+
+
+def _events_section(out: Path, progress: bool) -> None:
+    """Impacts and stop conditions on index-3 models: the wall pendulum against its exact impact
+    times, and the crane trolley hitting its end stop until a terminal event finds it at rest."""
+    import matplotlib.pyplot as plt
+
+    import daekit as dk
+    from daekit.examples.exact import pendulum_wall_impacts
+
+    _say("")
+    _say("=" * 78)
+    _say("2b. Events: a pendulum hitting a wall, a crane trolley at its end stop")
+    _say("=" * 78)
+    e = 0.8
+    r = dk.reduce_index(dk.examples.pendulum_wall(e))
+    init = dk.initialize(r, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
+    done = _bar(progress, "wall pendulum")
+    t0 = time.perf_counter()
+    tr = dk.simulate(r, np.linspace(0.0, 6.0, 601), init, rtol=1e-10, atol=1e-10)
+    done(time.perf_counter() - t0)
+    te = np.array([t for t, _ in tr.events])
+    ref = pendulum_wall_impacts(te.size, e)
+    post = [int(np.nonzero(tr.t == t)[0][-1]) for t in te]
+    _say(f"Planar pendulum (index 3) released from horizontal, wall at x = 0, restitution {e}: "
+         f"{te.size} impacts in 6 s; largest error of the impact times against the exact ones "
+         f"(elliptic integral K, energy x e^2 per impact): {np.max(np.abs(te - ref)):.1e} s; "
+         f"after each reset |rod|, |d/dt rod| <= {np.max(np.abs(tr.invariants[post])):.1e} "
+         "(the velocity jump re-projected onto G v = 0, positions untouched).")
+    ls = dk.examples.crane_end_stop()
+    rc = ls.index1()
+    initc = dk.initialize(rc, fixed=dk.examples.CRANE_END_STOP_INIT)
+    done = _bar(progress, "crane end stop")
+    t0 = time.perf_counter()
+    trc = dk.simulate(rc, np.linspace(0.0, 30.0, 1201), initc, rtol=1e-8, atol=1e-8)
+    done(time.perf_counter() - t0)
+    _say("Crane: the trolley is pushed for 0.5 s (an if_else on t: a switch the integrator "
+         "stops at), hits the end stop at s = 0.5 (restitution 0.5; the mass-weighted "
+         "projection passes the impulse through the cable to the load) and the terminal event "
+         "'at_rest' ends the run when the swing's energy is below 1e-3:")
+    for t_, n_ in trc.events:
+        _say(f"  t = {t_:8.4f}  {n_}")
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    axes[0].plot(tr.t, tr["x"], label="x")
+    axes[0].plot(tr.t, tr["der(x)"], label="der(x)")
+    for t_ in ref:
+        axes[0].axvline(t_, color="0.8", lw=0.8, zorder=0)
+    axes[0].set_title(f"wall pendulum, e = {e}: exact impact times (grey)")
+    axes[0].set_xlabel("t [s]")
+    axes[0].legend()
+    axes[1].plot(trc.t, trc["q[0]"], label="trolley s")
+    axes[1].plot(trc.t, trc["q[1]"], label="load x")
+    axes[1].axhline(0.5, color="k", lw=0.8, ls="--", label="end stop")
+    axes[1].set_title("crane: end stop, then at rest (terminal)")
+    axes[1].set_xlabel("t [s]")
+    axes[1].legend()
+    fig.tight_layout()
+    _save(fig, out / "events.png")
 
 
 def _positions_figure(row: RemedyResult, path: Path, window: float = 10.0) -> None:

@@ -224,7 +224,7 @@ def _bound_conflicts(prob, ba: BoundaryAnalysis) -> None:
     """Conditions that fix one variable to a value outside its bounds: a proof."""
     a = prob.aug
     for c in prob.conditions:
-        if c.kind == "periodic":
+        if c.kind == "periodic" or isinstance(c.value, tuple):  # (tuple: up to sign)
             continue
         w = a.which(c.expr)
         if w is None or w[0] not in prob.lb:

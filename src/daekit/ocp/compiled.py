@@ -284,6 +284,10 @@ def compile_problem(ocp) -> Problem:
     for c in conds:
         e0 = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(0.0, v0)])[0]
         eT = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0]
+        if isinstance(c.value, tuple):  # up to sign: b . v(T), or a minor of [v(T) v(0)]
+            rows.append(ca.dot(ca.DM(c.value[1]), eT) if c.value[0] == "normal" else
+                        eT[0] * e0[1] - eT[1] * e0[0])
+            continue
         rows.append(e0 - c.value if c.kind == "initial" else
                     eT - c.value if c.kind == "final" else eT - e0)
     bc = ca.vertcat(*rows) if rows else ca.SX(0, 1)

@@ -210,32 +210,31 @@ def _definitions(ex: Expansion, chosen):
 
 def _dependency_depth(sp: ca.Sparsity, n: int):
     """Longest dependency chain among definitions (rows depend on columns); None on a cycle,
-    together with the rows that are part of (or depend on) a cycle."""
+    together with the rows that are part of (or depend on) a cycle. Level by level on index
+    arrays (Kahn's algorithm, one frontier at a time)."""
+    import scipy.sparse as sps
+
     r_idx, c_idx = sp.get_triplet()
     if not r_idx:
         return 0, []
-    deps = [[] for _ in range(n)]  # deps[r]: columns r needs
-    users = [[] for _ in range(n)]
-    for r, cc in zip(r_idx, c_idx, strict=True):
-        deps[r].append(cc)
-        users[cc].append(r)
-    missing = [len(x) for x in deps]
-    depth = [0] * n
-    ready = [r for r in range(n) if missing[r] == 0]
-    done = 0
-    while ready:
-        nxt = []
-        for cc in ready:
-            done += 1
-            for r in users[cc]:
-                depth[r] = max(depth[r], depth[cc] + 1)
-                missing[r] -= 1
-                if missing[r] == 0:
-                    nxt.append(r)
-        ready = nxt
+    r_idx = np.asarray(r_idx, dtype=np.int64)
+    c_idx = np.asarray(c_idx, dtype=np.int64)
+    users = sps.csr_matrix((np.ones(r_idx.size), (c_idx, r_idx)), shape=(n, n))  # col -> rows
+    missing = np.bincount(r_idx, minlength=n)
+    ready = np.nonzero(missing == 0)[0]
+    done, depth = 0, 0
+    while ready.size:
+        done += ready.size
+        nxt_rows = users[ready].indices
+        if not nxt_rows.size:
+            break
+        np.subtract.at(missing, nxt_rows, 1)
+        ready = np.unique(nxt_rows[missing[nxt_rows] == 0])
+        if ready.size:
+            depth += 1
     if done < n:
-        return None, [r for r in range(n) if missing[r] > 0]
-    return max(depth), []
+        return None, np.nonzero(missing > 0)[0].tolist()
+    return depth, []
 
 
 def find_eliminations(ex: Expansion, highest: bool = False) -> Elimination:

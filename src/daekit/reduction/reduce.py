@@ -63,6 +63,7 @@ from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
+from .invariants import attach_declared
 
 __all__ = ["reduce_index", "check_index1"]
 
@@ -152,7 +153,7 @@ def reduce_index(
         )
     if not check:
         ex, amendments = amended_expansion(model, seed=seed)
-        return _differentiate(ex, amendments, eliminate)
+        return attach_declared(_differentiate(ex, amendments, eliminate), model, check=False)
     # The amendment machinery (left null vectors of Pryce's system Jacobian) only runs where
     # that Jacobian is singular, i.e. where the index-1 check of the plain reduction fails
     # (d alg / d z is the system Jacobian, or its Schur complement on the eliminated pivots)
@@ -160,7 +161,7 @@ def reduce_index(
     r = _differentiate(ex, [], eliminate)
     try:
         check_index1(r, seed=seed)
-        return r
+        return attach_declared(r, model, seed=seed)  # m.invariant(...): checked, appended
     except ReductionError:
         pass
     ex, amendments = amended_expansion(model, seed=seed)
@@ -174,7 +175,7 @@ def reduce_index(
             # highest derivatives were substituted: the message of the KKT form
             reduce_index(model, seed=seed, eliminate="states")
         raise
-    return r
+    return attach_declared(r, model, seed=seed)
 
 
 def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDAE:

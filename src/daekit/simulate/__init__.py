@@ -8,8 +8,7 @@ from .dispatch import NothingToStabilizeWarning, simulate
 from .driver import Action, Driver, Firing, Monitor, Segment
 from .inputs import InputError
 from .projection import Projector
-from .storage import load_trajectory
-from .trajectory import NameNotFoundError, Trajectory
+from .trajectory import NameNotFoundError, Trajectory, load_trajectory
 
 __all__ = ["simulate", "Trajectory", "Projector", "InputError", "NameNotFoundError", "Driver",
            "Monitor", "Segment", "Firing", "Action", "NothingToStabilizeWarning",

@@ -111,13 +111,33 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.ndar
     if arr.size == r.nx:
         x0 = arr
         z0 = system.solve_z(t0, x0, np.zeros(r.nz), sig.value(t0), pv)
+        _check_array_start(r, t0, x0, z0, sig.value(t0), pv)
         return x0, z0
     if arr.size == r.nx + r.nz:
+        _check_array_start(r, t0, arr[: r.nx], arr[r.nx:], sig.value(t0), pv)
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
         f"of the {count(r.nx, 'state')}; got {count(arr.size, 'number')}"
     )
+
+
+def _check_array_start(r, t0, x0, z0, u0, pv, rtol: float = 1e-6) -> None:
+    """An initial state given as an array must satisfy the consistency conditions: an index-1
+    system started off them integrates a different (drifting) solution without a word."""
+    if not r.invariants.numel():
+        return
+    inv = np.asarray(ca.Function("inv0", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(
+        t0, x0, z0, u0, pv), dtype=float).ravel()
+    scale = 1.0 + np.max(np.abs(x0), initial=0.0)
+    bad = np.nonzero(~(np.abs(inv) <= rtol * scale))[0]
+    if bad.size:
+        shown = ", ".join(f"{r.invariant_names[i]} = {inv[i]:.3g}" for i in bad[:5])
+        raise InputError(
+            f"simulate: the initial state given as an array violates the consistency "
+            f"conditions ({shown}); an index-1 system started there drifts from the start. "
+            "Make it consistent with dk.initialize(r, guess=..., fixed=...) and pass the result"
+        )
 
 
 def simulate(
@@ -134,7 +154,8 @@ def simulate(
     poles=(-1.0, -1.0),
     drift_tol: float | None = None,
     monitors: Sequence = (),
-    project_output: bool = True,
+    project_output: bool | None = None,
+    events: bool = True,
     **options,
 ) -> Trajectory:
     """Simulate a reduced (index-1) DAE and return its :class:`Trajectory`.
@@ -178,13 +199,20 @@ def simulate(
     drift_tol : float, optional
         For ``"projection"``: the largest ``|invariant|`` tolerated; default
         :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``.
-    project_output : bool
+    project_output : bool, optional
         For ``"projection"``: also project the recorded output points onto the manifold
         (without touching the integration, which projects only when ``drift_tol`` is crossed),
-        so the returned values satisfy the invariants to rounding (default True;
-        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had).
+        so the returned values satisfy the invariants to rounding. Default: where it is cheap
+        (``nx + nz + invariants <= 96``: batched dense Gauss--Newton); on larger systems the
+        recorded points keep the integration's drift, below ``drift_tol``.
+        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had.
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
+    events : bool
+        Honour the model's events (:meth:`daekit.Model.event`) and stop at the switches of its
+        equations (``if_else``, ``fabs``, ...); see :mod:`daekit.simulate.events`, whose
+        keywords ``event_spacing``, ``zeno_count``, ``zeno_window`` and ``max_events`` may be
+        given here. ``False`` integrates the equations as they are.
     **options
         Passed to the CasADi IDAS integrator (e.g. ``max_num_steps``). For an index-2 system
         (``dk.ggl(r)``) ``suppress_algebraic=True`` is the default.
@@ -222,6 +250,14 @@ def simulate(
                 f"simulate: method='rattle' keeps the constraints by construction and takes no "
                 f"stabilization (got {stabilization!r}); drop stabilization= or use method='idas'"
             )
+        if events and getattr(getattr(r, "model", None), "events", None):
+            from .events import simulate_rattle_events
+
+            traj = simulate_rattle_events(r, t, init, inputs=inputs, params=params,
+                                          progress=progress, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
         traj = simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,
@@ -231,6 +267,27 @@ def simulate(
         return traj
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
+    event_keys = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
+    if events and not monitors:
+        from .events import has_events, simulate_events
+
+        if has_events(r):
+            if isinstance(stabilization, str) and stabilization.lower() == "none":
+                stabilization = None
+            if stabilization not in STABILIZATIONS:
+                raise InputError(
+                    f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
+                    "'projection' or 'dummy_derivatives'"
+                )
+            check_grid(t)
+            traj = simulate_events(r, t, init, inputs=inputs, params=params,
+                                   stabilization=stabilization, rtol=rtol, atol=atol,
+                                   poles=poles, progress=progress, drift_tol=drift_tol,
+                                   project_output=project_output, run=simulate, **options)
+            if notes:
+                traj.stats["reduced"] = notes[0]
+            return traj
+    options = {k: v for k, v in options.items() if k not in event_keys}
     if isinstance(stabilization, str) and stabilization.lower() == "none":
         stabilization = None
     if stabilization not in STABILIZATIONS:
@@ -261,7 +318,12 @@ def simulate(
     if stabilization == "baumgarte":
         from ..reduction import baumgarte
 
-        r_int = baumgarte(r, poles=poles)
+        # made once per system and poles, kept on it (so is its integrator)
+        cache = r.__dict__.setdefault("_daekit_baumgarte", {})
+        key = repr(poles)
+        if key not in cache:
+            cache[key] = baumgarte(r, poles=poles)
+        r_int = cache[key]
     if r_int.info.get("index", 1) >= 2 and "suppress_algebraic" not in options:
         # an index-2 form (GGL): its algebraic unknowns are not controlled by the BDF error
         # test (the index-2 variables' errors do not converge at the order of the method),
@@ -285,7 +347,10 @@ def simulate(
 
         traj = simulate_dummy(r_int, tg, x0, z0, inputs, pv, rtol, atol, options, progress)
     elif stabilization == "projection":
-        proj = Projector(r_int)
+        proj = r_int.__dict__.get("_daekit_projector")  # built once per system, kept on it
+        if proj is None:
+            proj = r_int.__dict__["_daekit_projector"] = Projector(r_int)
+        proj.stats = {"projections": 0, "projection_iterations": 0}
         proj.set_tolerances(rtol, atol)
         tol = default_drift_tol(rtol, atol) if drift_tol is None else float(drift_tol)
         inv0 = system.evaluator.invariants(tg[:1], x0[None, :], z0[None, :], U[:1], pv)
@@ -295,6 +360,8 @@ def simulate(
         res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
                      label="projection").run()
         nproj = proj.stats["projections"]
+        if project_output is None:
+            project_output = proj.nx + proj.nz + proj.nh <= 96
         if project_output:
             # the recorded rows onto the manifold too (read-only: the integration is not
             # touched), so the results satisfy the invariants to rounding

@@ -8,7 +8,8 @@ output points inside it, and ``checks`` evenly spaced check points). When one fi
 driver keeps the rows before the firing time, lets the monitor *act* (project, re-select the
 states, reset a state, stop), and starts the next segment there. A restart of IDAS happens
 only at such an event -- and at the end of a segment in which nothing fired, whose length
-quadruples every time (the first is a quarter of the span), so there are only
+quadruples every time (the first is a quarter of the span unless the monitors say
+otherwise), so there are only
 logarithmically many of those. After an event the next
 segment is 1.5 times the time since the previous restart (events that recur, like drift
 crossing a tolerance, then cost little re-integration).
@@ -162,6 +163,9 @@ class Monitor:
 
     name = "monitor"
     check_dt: float | None = None
+    #: length of the driver's first segment as a fraction of the span (the smallest over the
+    #: monitors is used)
+    first_segment: float = 0.25
 
     def init(self, driver: Driver, t0: float, x0: np.ndarray, z0: np.ndarray) -> Any:
         """The monitor's state at the start (default None)."""
@@ -417,7 +421,7 @@ class Driver:
         result.parts.append(cur)
         states = [m.init(self, t, x, z) for m in self.monitors]
         k = 1
-        L = self.span if not self.monitors else self.span / 4
+        L = self.span * min([getattr(m, "first_segment", 0.25) for m in self.monitors] or [1.0])
         bar = Progress(self.progress, tg[0], tg[-1], self.label)
         w0 = time.perf_counter()
         last_fail_t = None

@@ -168,6 +168,7 @@ class InputSignal:
             else ca.SX(0, 1)
         self._fexpr = ca.Function("u_of_t", [t, self.cb_syms], [self.expr])
         self.nu = nu
+        self._constant: bool | None = None
 
     @property
     def has_callables(self) -> bool:
@@ -210,6 +211,13 @@ class InputSignal:
         ts = np.asarray(ts, dtype=float).ravel()
         if self.nu == 0:
             return np.zeros((ts.size, 0))
+        if not self.has_callables and self._constant is None:
+            self._constant = (not ca.depends_on(self.expr, self.r.t)) and self.expr.is_constant()
+        if not self.has_callables and self._constant:
+            # inputs that do not change (the default: zero): one evaluation
+            u0 = np.asarray(ca.DM(self.expr), dtype=float).ravel()
+            self.check_finite(u0, float(ts[0]) if ts.size else 0.0)
+            return np.repeat(u0[None, :], ts.size, axis=0)
         if not self.has_callables:
             n = ts.size
             m = n if n <= 64 else 1 << (n - 1).bit_length()  # few distinct mapped Functions

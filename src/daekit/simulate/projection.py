@@ -96,6 +96,8 @@ class Projector:
         self.stats = {"projections": 0, "projection_iterations": 0}
         self._ksp = None
         self._lu = None
+        self._dense = None
+        self._maps: dict[int, ca.Function] = {}
 
     def set_tolerances(self, rtol: float, atol: float) -> None:
         """Weight ``x_i`` by ``1 / (atol + rtol |x_i|)^2`` at the point projected."""
@@ -147,7 +149,7 @@ class Projector:
             res = float(np.max(np.abs(hv), initial=0.0))
             if not np.isfinite(res) or res <= tol * (1.0 + float(np.max(np.abs(w), initial=0.0))):
                 break
-            if lu is None or res > 0.25 * last:  # (re)factor when convergence is slow
+            if lu is None or res > 0.5 * last:  # (re)factor when convergence is slow
                 lu = self._factor(t, w, u, p, dmet)
                 if lu is None:
                     break
@@ -172,11 +174,11 @@ class Projector:
         return w[: self.nx], w[self.nx:], dx
 
 
-    def project_rows(self, T, X, Z, U, p, iters: int = 4):
-        """Project many rows at once (the recorded output points): batched dense Newton on
-        the small KKT blocks where ``nx + nz + nh <= 96``, else row by row (sparse).
-
-        Returns ``(X, Z)``; rows that do not converge are left as they were."""
+    def project_rows(self, T, X, Z, U, p, iters: int = 3, chunk: int = 1024):
+        """Project many rows at once (the recorded output points): batched Gauss--Newton with
+        the minimum-norm step ``dw = -D^+ J^T (J D^+ J^T)^{-1} h`` (small ``nh x nh`` solves,
+        ``z`` free) where ``nx + nz + nh <= 96``, in chunks of ``chunk`` rows; else row by row
+        with the sparse KKT. Returns ``(X, Z)``; rows that do not converge stay as they were."""
         T = np.asarray(T, float).ravel()
         X = np.array(X, dtype=float, copy=True)
         Z = np.array(Z, dtype=float, copy=True)
@@ -192,17 +194,25 @@ class Projector:
                     pass
                 self.stats["projections"] -= 1  # output projections are not counted
             return X, Z
-        if getattr(self, "_dense", None) is None:
+        U = np.asarray(U, float).reshape(N, -1)
+        for a in range(0, N, chunk):
+            b = min(N, a + chunk)
+            X[a:b], Z[a:b] = self._project_chunk(T[a:b], X[a:b], Z[a:b], U[a:b], p, iters,
+                                                 chunk if N > chunk else _pow2(b - a))
+        return X, Z
+
+    def _project_chunk(self, T, X, Z, U, p, iters, m):
+        nx, nz, nh = self.nx, self.nz, self.nh
+        n = nx + nz
+        N = T.size
+        if self._dense is None:
             w = ca.SX.sym("w", n)
-            t, u, pp = ca.SX.sym("t"), ca.SX.sym("u", np.size(U[0])), ca.SX.sym("p", np.size(p))
+            t, u = ca.SX.sym("t"), ca.SX.sym("u", U.shape[1])
+            pp = ca.SX.sym("p", np.size(p))
             h = self.fun(t, w, u, pp)
             self._dense = ca.Function("proj_dense", [t, w, u, pp],
                                       [h, ca.densify(ca.jacobian(h, w))])
-            self._maps = {}
-        m = N if N <= 64 else 1 << (N - 1).bit_length()
         if m not in self._maps:
-            if len(self._maps) > 8:
-                self._maps.clear()
             self._maps[m] = self._dense.map(m)
         F = self._maps[m]
 
@@ -212,10 +222,16 @@ class Projector:
                 [A, np.repeat(A[-1:], m - A.shape[0], axis=0)], axis=0)
 
         W = pad(np.hstack([X, Z]))
-        Tp, Up = pad(T), pad(np.asarray(U, float).reshape(N, -1))
+        W0 = W.copy()
+        Tp, Up = pad(T), pad(U)
         P = np.repeat(np.asarray(p, float).reshape(1, -1), m, axis=0)
         ni, no = F.name_in(), F.name_out()
-        W0 = W.copy()
+        if self.rtol is not None:
+            wx = 1.0 / (self.atol + self.rtol * np.abs(W[:, :nx])) ** 2
+            Dinv = np.max(wx, axis=1, keepdims=True) / wx  # D^+ on x; z: free (large)
+        else:
+            Dinv = np.repeat((1.0 / self.weights)[None, :], m, axis=0)
+        Dinv = np.hstack([Dinv, np.full((m, nz), 1e8 * np.max(Dinv, initial=1.0))])
         for _ in range(iters):
             out = fast_call(F, {ni[0]: Tp, ni[1]: W, ni[2]: Up, ni[3]: P},
                             {no[0]: (m, nh), no[1]: (m, n, nh)})
@@ -223,30 +239,24 @@ class Projector:
             if not np.all(np.isfinite(H)) or np.max(np.abs(H)) < 1e-14 * (1 + np.max(np.abs(W))):
                 break
             J = np.transpose(out[no[1]], (0, 2, 1))  # (m, nh, n)
-            D = np.zeros((m, n))
-            if self.rtol is not None:
-                wx = 1.0 / (self.atol + self.rtol * np.abs(W[:, :nx])) ** 2
-                D[:, :nx] = wx / np.max(wx, axis=1, keepdims=True, initial=1e-300)
-            else:
-                D[:, :nx] = self.weights
-            K = np.zeros((m, n + nh, n + nh))
-            idx = np.arange(n)
-            K[:, idx, idx] = D
-            K[:, :n, n:] = np.transpose(J, (0, 2, 1))
-            K[:, n:, :n] = J
-            rhs = np.zeros((m, n + nh))
-            rhs[:, n:] = -H
+            JD = J * Dinv[:, None, :]
+            M = np.einsum("kij,klj->kil", JD, J)
             try:
-                sol = np.linalg.solve(K, rhs[..., None])[..., 0]
+                lam = np.linalg.solve(M, H[..., None])[..., 0]
             except np.linalg.LinAlgError:
                 break
-            if not np.all(np.isfinite(sol)):
+            dW = -np.einsum("kij,ki->kj", JD, lam)
+            if not np.all(np.isfinite(dW)):
                 break
-            W = W + sol[:, :n]
+            W = W + dW
         W = W[:N]
         ok = np.all(np.isfinite(W), axis=1)
         W[~ok] = W0[:N][~ok]
         return W[:, :nx], W[:, nx:]
+
+
+def _pow2(n: int) -> int:
+    return n if n <= 64 else 1 << (n - 1).bit_length()
 
 
 def _rows(seg, rows):
@@ -266,6 +276,9 @@ class DriftMonitor(Monitor):
     """
 
     name = "projection"
+    #: the first segment is the whole span: a run whose drift never reaches drift_tol is then
+    #: one IDAS run, exactly the plain one
+    first_segment = 1.0
 
     def __init__(self, projector: Projector, tol: float) -> None:
         self.projector = projector

@@ -55,7 +55,8 @@ from ..errors import InitializationError, ModelError, SimulationError
 from ..wording import count
 from .progress import Progress
 
-__all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
+__all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics",
+           "rattle_stepper"]
 
 #: default largest step when neither ``dt`` nor a fine output grid is given
 DEFAULT_DT = 1e-2
@@ -745,6 +746,29 @@ def _make_consistent(
 
 # ----------------------------------------------------------------------------------------------
 # the driver
+
+
+def rattle_stepper(system: Any, t_range, params: dict | None = None, inputs: Any = None,
+                   newton_iter: int = 8) -> tuple[ConstrainedMechanics, ca.Function, dict]:
+    """``(sysm, step, helpers)`` for stepping RATTLE one step at a time (used for events).
+
+    ``step(X, h)`` maps ``X = [t; q; p; lam; max|c|; max|c'|]`` (``p = M q'`` the momenta)
+    over one step ``h``; ``helpers["out"](t, q, p)`` gives ``(v, E, c, c', lam, q'')``,
+    ``helpers["p_of_v"](q, v)`` the momenta. ``t_range`` (start, end) is where inputs are
+    checked.
+
+    >>> import numpy as np
+    >>> from daekit.examples.mechanisms import lagrangian_pendulum3d
+    >>> sysm, step, helpers = rattle_stepper(lagrangian_pendulum3d(), (0.0, 1.0))
+    >>> sysm.n, sysm.m
+    (3, 1)
+    """
+    sysm = as_constrained_mechanics(system, params)
+    t0, t1 = float(t_range[0]), float(t_range[1])
+    force, uexpr = _bind_inputs(sysm, inputs, (t0, 0.5 * (t0 + t1), t1))
+    step, helpers = _build_step(sysm, newton_iter, force)
+    helpers["u"] = ca.Function("u", [sysm.t], [uexpr])
+    return sysm, step, helpers
 
 
 def _fallback_trajectory(**kw: Any) -> Any:

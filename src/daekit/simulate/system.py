@@ -30,6 +30,7 @@ Example
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from collections.abc import Mapping
@@ -40,7 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .._cio import c_output, failure_time
-from .inputs import InputSignal
+from .inputs import InputError, InputSignal
 from .trajectory import Trajectory
 
 __all__ = ["System", "system_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
@@ -493,8 +494,12 @@ class System:
         if F is None:
             if len(self._grid) >= 6:
                 self._grid.pop(next(iter(self._grid)))
-            F = ca.integrator("daekit_idas", "idas", self._dae(), float(grid[0]),
-                              [float(v) for v in grid[1:]], self.options_for(extra))
+            opts = self.options_for(extra)
+            try:
+                F = ca.integrator("daekit_idas", "idas", self._dae(), float(grid[0]),
+                                  [float(v) for v in grid[1:]], opts)
+            except RuntimeError as exc:
+                raise _option_error(exc, opts) from None
             self._grid[key] = F
         return F
 
@@ -570,3 +575,28 @@ def _sparse_solve(A: sp.csc_matrix, b: np.ndarray) -> np.ndarray:
         except RuntimeError:
             pass
     return spla.lsqr(A, b, atol=1e-15, btol=1e-15, iter_lim=10 * max(A.shape))[0]
+
+
+_UNKNOWN_OPTION = re.compile(r"Unknown option: (\w+)")
+_SUGGESTION = re.compile(r'> "(\w+)"')
+
+
+def _option_error(exc: RuntimeError, opts: Mapping) -> Exception:
+    """CasADi's refusal of an integrator option as a daekit error naming it (other failures
+    are passed on unchanged: they are not the user's options)."""
+    text = str(exc)
+    hit = _UNKNOWN_OPTION.search(text)
+    if hit is None:
+        if "option" in text.lower() and any(str(k) in text for k in opts):
+            bad = [str(k) for k in opts if str(k) in text]
+            return InputError(f"simulate: the IDAS option(s) {bad} were refused by CasADi: "
+                              f"{text.splitlines()[0][-200:]}")
+        return exc
+    name = hit.group(1)
+    near = difflib.get_close_matches(name, _SUGGESTION.findall(text), n=3, cutoff=0.6)
+    hint = f" Did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
+    return InputError(
+        f"simulate: {name!r} is not an option of CasADi's IDAS integrator.{hint} daekit's own "
+        "settings are rtol=, atol=, stabilization=, drift_tol=, inputs=, params=; other keywords "
+        "go to IDAS (see casadi.integrator's documentation, e.g. max_num_steps, max_order)."
+    )

@@ -16,6 +16,7 @@ Example
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -23,8 +24,9 @@ import numpy as np
 from ..errors import ModelError
 from ..model import NameNotFoundError, expand_name
 from ..wording import count
+from .storage import read_trajectory, save_trajectory
 
-__all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
+__all__ = ["Trajectory", "NameNotFoundError", "expand_name", "load_trajectory"]
 
 
 def _derivative_name(element: str) -> str:
@@ -63,6 +65,9 @@ class Trajectory:
         One name per invariant column, e.g. ``["rod", "d/dt rod"]``.
     stats : dict, optional
         Solver statistics (``steps``, ``residual_evaluations``, ``wall_time``, ...).
+    events : list of (float, str), optional
+        Events that fired, ``(t, name)`` in time order. At an event with a jump the trajectory
+        has two rows at that time: the values just before and just after it.
 
     Attributes
     ----------
@@ -83,8 +88,10 @@ class Trajectory:
         invariants=None,
         invariant_names: Iterable[str] | None = None,
         stats: dict | None = None,
+        events: Iterable[tuple[float, str]] | None = None,
     ) -> None:
         self.t = np.asarray(t, dtype=float).ravel()
+        self.events: list[tuple[float, str]] = [(float(te), str(n)) for te, n in (events or [])]
         n = self.t.size
         self.values: dict[str, np.ndarray] = {}
         for k, v in values.items():
@@ -100,7 +107,6 @@ class Trajectory:
         inv = np.asarray(invariants, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))
         self.invariants = inv
         self.stats = dict(stats or {})
-        self.events = []
 
     # ------------------------------------------------------------------ access
     def __getitem__(self, name: str) -> np.ndarray:
@@ -206,6 +212,7 @@ class Trajectory:
             self.invariants[:stop],
             self.invariant_names,
             self.stats,
+            [e for e in self.events if self.t.size and stop > 0 and e[0] <= self.t[:stop][-1]],
         )
 
     # ------------------------------------------------------------------ export and figures
@@ -230,8 +237,6 @@ class Trajectory:
         """Write this trajectory to ``path``, ``.parquet`` (pyarrow) or ``.npz`` (NumPy), a
         lossless documented format (:mod:`daekit.simulate.storage`); read it back with
         :func:`daekit.load_trajectory`. Returns the path written."""
-        from .storage import save_trajectory
-
         return save_trajectory(self, path)
 
     def plot(self, names: Iterable[str] | str | None = None, ax=None):
@@ -259,3 +264,18 @@ class Trajectory:
             f"{', ...' if len(self.names) > 8 else ''}; "
             f"{count(len(self.invariant_names), 'invariant')})"
         )
+
+
+def load_trajectory(path: str | os.PathLike) -> Trajectory:
+    """Read a trajectory written by :meth:`Trajectory.save` (``.parquet`` or ``.npz``; the
+    format is documented in :mod:`daekit.simulate.storage`).
+
+    Returns the :class:`Trajectory`, equal to the one saved (the same arrays bit for bit,
+    names, invariants, statistics and extra data such as events).
+    """
+    parts = read_trajectory(path)
+    traj = Trajectory(parts["t"], parts["values"], parts["invariants"], parts["invariant_names"],
+                      parts["stats"])
+    for k, v in parts["extra"].items():
+        setattr(traj, k, v)
+    return traj

@@ -615,7 +615,11 @@ def test_failed_guess_simulation_falls_back_to_a_consistent_final_point(monkeypa
             raise RuntimeError("IDA_CONV_FAIL (simulated)")
         return real(self, x, z, w, tk, h)
 
+    def whole_fails(self, *args):  # the one-call integration fails too: the interval loop runs
+        raise RuntimeError("IDA_CONV_FAIL (simulated)")
+
     monkeypatch.setattr(guess_mod._GuessSimulator, "interval", failing)
+    monkeypatch.setattr(guess_mod._GuessSimulator, "horizon", whole_fails)
     ocp = pendulum3d_rest_to_rest()
     g = guess_mod.make_guess(ocp.compile(), None)
     assert "failed at t = 0.2667" in g.note and "consistent final point" in g.note

@@ -37,9 +37,10 @@ from .consistency import (
     analyze_boundary,
     conflicting_conditions,
     project_ends,
+    project_ends_many,
 )
 
-__all__ = ["analyze", "end_points"]
+__all__ = ["analyze", "end_points", "columns"]
 
 
 def end_points(g):
@@ -78,11 +79,9 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     man = prob.ends_fun
     y = np.concatenate([a0, aT])
     sc = np.maximum(1.0, np.abs(y))
-    generic = []
-    for _ in range(2):
-        yp = y + 0.05 * sc * rng.standard_normal(y.size)
-        b0, bT, _r = project_ends(man, yp[:n], yp[n:], p, T)
-        generic.append((b0, bT))
+    yps = [y + 0.05 * sc * rng.standard_normal(y.size) for _ in range(2)]
+    generic = [(b0, bT) for b0, bT, _r in
+               project_ends_many(columns(man), [(yp[:n], yp[n:]) for yp in yps], p, T)]
 
     def jacs(e0, eT):
         return (np.asarray(prob.bc_jac(e0, eT, p, T)), np.asarray(prob.man_jac(0.0, e0, p)),
@@ -100,8 +99,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
                               preference=prob.bc_pref, others=[at_a], forced=list(forced))
         ba.ranks = probe.ranks
     else:
-        ba = analyze_boundary(labels, *at_a, preference=prob.bc_pref, others=at_b,
-                              forced=list(forced))
+        ba = probe  # the same call (it returns a new record; computed once)
     ba.preference = list(prob.bc_pref)
     ba.forced = [int(i) for i in forced]
     # the manifold counts w as free directions; report the state-space dimension
@@ -240,23 +238,49 @@ def _bound_conflicts(prob, ba: BoundaryAnalysis) -> None:
         ba.proven = True
 
 
+def columns(fun, rows=None):
+    """The CasADi end-point function ``fun(v0, vT, p, T) -> (r, J)`` evaluated on end points
+    given as columns, in one mapped call, in the form :func:`project_ends_many` takes:
+    residuals ``(m, k)`` and Jacobians ``(m, k, 2 n)`` (only the rows ``rows`` when given).
+
+    >>> import casadi as ca, numpy as np
+    >>> v0, vT = ca.SX.sym("v0", 2), ca.SX.sym("vT", 2)
+    >>> r = ca.vertcat(ca.sumsqr(v0) - 1, vT[0] - v0[0])
+    >>> f = ca.Function("f", [v0, vT, ca.SX.sym("p", 0), ca.SX.sym("T")],
+    ...                 [r, ca.jacobian(r, ca.vertcat(v0, vT))])
+    >>> R, J = columns(f)(np.array([[1.0, 2.0], [0, 0]]), np.zeros((2, 2)), [], 0.0)
+    >>> R.tolist(), J.shape
+    ([[0.0, 3.0], [-1.0, -2.0]], (2, 2, 4))
+    """
+    def sub(V0, VT, p, T):
+        k = V0.shape[1]
+        R, J = fun(V0, VT, p, T)
+        R = np.asarray(R, float).reshape(-1, k)
+        J = np.asarray(J, float).reshape(R.shape[0], k, 2 * V0.shape[0])
+        return (R, J) if rows is None else (R[rows], J[rows])
+
+    return sub
+
+
 def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
     """Dropped conditions that select a branch of the set where the kept ones hold become
     inequalities ``|c| <= gap / 2`` (see the module docstring)."""
     n = a_pt[0].size
     rows = list(range(2 * nman)) + [2 * nman + i for i in ba.kept]
     pinned = {k for k, *_ in ba.pins}
-    sub0 = _rows_of(prob.ends_fun, rows)
     pin_rows = [(0 if k == "initial" else n) + i for k, i, _, _ in ba.pins]
-    pin_vals = np.array([v for _, _, v, _ in ba.pins])
+    pin_vals = np.array([v for _, _, v, _ in ba.pins]).reshape(-1, 1)
 
-    def sub(v0, vT, p_, T_):
-        r, J = sub0(v0, vT, p_, T_)
+    sub0 = columns(prob.ends_fun, rows)
+
+    def sub(V0, VT, p_, T_):  # all starts at once (columns): one mapped evaluation
+        k = V0.shape[1]
+        R, J = sub0(V0, VT, p_, T_)
         if not pin_rows:
-            return r, J
-        y_ = np.concatenate([v0, vT])
-        E = np.eye(2 * n)[pin_rows]
-        return np.concatenate([r, y_[pin_rows] - pin_vals]), np.vstack([J, E])
+            return R, J
+        Y_ = np.vstack([V0, VT])
+        E = np.broadcast_to(np.eye(2 * n)[pin_rows][:, None, :], (len(pin_rows), k, 2 * n))
+        return np.vstack([R, Y_[pin_rows] - pin_vals]), np.concatenate([J, E], axis=0)
     y = np.concatenate(a_pt)
     sc = np.maximum(1.0, np.abs(y))
     starts = [guess_pt, (2 * a_pt[0] - guess_pt[0], 2 * a_pt[1] - guess_pt[1]),
@@ -265,8 +289,7 @@ def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
         yp = y + amp * sc * rng.standard_normal(y.size)
         starts.append((yp[:n], yp[n:]))
     others = []
-    for s0, sT in starts:
-        e0, eT, res = project_ends(sub, s0, sT, p, T, max_iter=30)
+    for e0, eT, res in project_ends_many(sub, starts, p, T, max_iter=30):
         if res < 1e-9:
             others.append(np.asarray(prob.bc_fun(e0, eT, p, T), float).ravel())
     if not others:

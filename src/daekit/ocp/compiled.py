@@ -93,6 +93,25 @@ class Problem:
         return [f"equation {n!r}" for n in self.alg_names] + [
             f"invariant {n!r}" for n in self.aug.inv_names]
 
+    def model_fun(self) -> ca.Function:
+        """``(t, x, z, w, p) -> (ode, alg, lagrange)``, built once per compiled problem (the
+        transcriptions, the guess and the benchmarks share it)."""
+        f = self.__dict__.get("_model_fun")
+        if f is None:
+            a = self.aug
+            f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, self.lagrange])
+            self.__dict__["_model_fun"] = f
+        return f
+
+    def inv_fun(self) -> ca.Function:
+        """``(t, x, z, w, p) -> invariants``, built once per compiled problem."""
+        f = self.__dict__.get("_inv_fun")
+        if f is None:
+            a = self.aug
+            f = ca.Function("inv", [a.t, a.x, a.z, a.w, a.p], [a.inv])
+            self.__dict__["_inv_fun"] = f
+        return f
+
     def simple_bounds(self):
         return (self.lb["x"], self.ub["x"], self.lb["z"], self.ub["z"],
                 self.lb["w"], self.ub["w"])

@@ -33,11 +33,11 @@ import numpy as np
 
 from .consistency import (
     BoundaryAnalysis,
-    _rows_of,
     analyze_boundary,
     conflicting_conditions,
     project_ends,
     project_ends_many,
+    rows_of,
 )
 
 __all__ = ["analyze", "end_points", "columns"]
@@ -164,12 +164,12 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
     the manifold (the pole upright at rest: ``p[1] = L`` touches the circle there), impose that
     point instead: the values of an independent subset of the states at it (regular, the same
     point set); the end's own conditions are checked at the solution."""
-    from .compiled import _levels
+    from .compiled import derivative_levels
     from .consistency import equilibrate, independent_rows, null_basis
 
     a = prob.aug
     n = a_pt[0].size
-    lev = _levels(a)
+    lev = derivative_levels(a)
     names = a.x_names
     for e, kind in enumerate(("initial", "final")):
         idx = [i for i, k in enumerate(prob.bc_kinds) if k == kind]
@@ -183,7 +183,7 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
         if dim <= 0 or sv.size < dim or sv[dim - 1] > 1e-4:
             continue  # the end's conditions do not fix the point, or fix it regularly
         rows = list(range(e * nman, (e + 1) * nman)) + [2 * nman + i for i in idx]
-        sub = _rows_of(prob.ends_fun, rows)
+        sub = rows_of(prob.ends_fun, rows)
         y = np.concatenate(a_pt)
         isolated = True
         for _ in range(3):

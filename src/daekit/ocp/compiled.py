@@ -158,7 +158,7 @@ class Problem:
                   None, "boundary", [labels[i] + " (branch)" for i, _, _ in selectors])
 
 
-def _levels(a: Augmented) -> dict[tuple[str, int], int]:
+def derivative_levels(a: Augmented) -> dict[tuple[str, int], int]:
     """Derivative level of every decision symbol: 0 for positions, 1 for velocities...
 
     A state ``x_i`` with ``x_j' = x_i`` (``p' = v``, or the state ``der(p)``) is one level
@@ -220,7 +220,7 @@ def _preference(a: Augmented, conditions: list[Condition]) -> list[int]:
     """Order of preference of the boundary conditions when an independent subset is chosen:
     position-level before velocity-level (the highest derivative level of the symbols a
     condition involves), then the order given."""
-    lev = _levels(a)
+    lev = derivative_levels(a)
     keys = []
     for i, c in enumerate(conditions):
         ws = [a.which(s) for s in ca.symvar(c.expr)]

@@ -415,7 +415,7 @@ def project_ends_many(fun, starts, p, T, tol: float = 1e-10, max_iter: int = 60)
             for i in range(k)]
 
 
-def _rows_of(fun, rows):
+def rows_of(fun, rows):
     """``fun`` restricted to the residual rows ``rows`` (for :func:`project_ends`)."""
     rows = np.asarray(rows, dtype=int)
 
@@ -471,7 +471,7 @@ def conflicting_conditions(
         rows = (list(range(n_fixed)) if fixed else []) + [n_fixed + i for i in conds]
         if not rows:
             return True
-        sub = _rows_of(fun, rows)
+        sub = rows_of(fun, rows)
         for a, b in starts:
             lim = tol * max(1.0, float(np.max(np.abs(np.concatenate([a, b])), initial=0.0)))
             if project_ends(sub, a, b, p, T)[2] <= lim:

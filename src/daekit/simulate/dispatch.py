@@ -129,6 +129,18 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system,
     )
 
 
+def _stabilization(stabilization):
+    """The stabilization asked for, checked (``"none"`` is None)."""
+    if isinstance(stabilization, str) and stabilization.lower() == "none":
+        return None
+    if stabilization not in STABILIZATIONS:
+        raise InputError(
+            f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
+            "'projection' or 'dummy_derivatives'"
+        )
+    return stabilization
+
+
 def _check_array_start(r, t0, x0, z0, u0, pv, rtol: float = 1e-6) -> None:
     """An initial state given as an array must satisfy the consistency conditions: an index-1
     system started off them integrates a different (drifting) solution without a word."""
@@ -281,13 +293,7 @@ def simulate(
         from .events import has_events, simulate_events
 
         if has_events(r):
-            if isinstance(stabilization, str) and stabilization.lower() == "none":
-                stabilization = None
-            if stabilization not in STABILIZATIONS:
-                raise InputError(
-                    f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
-                    "'projection' or 'dummy_derivatives'"
-                )
+            stabilization = _stabilization(stabilization)
             check_grid(t)
             traj = simulate_events(r, t, init, inputs=inputs, params=params,
                                    stabilization=stabilization, rtol=rtol, atol=atol,
@@ -297,13 +303,7 @@ def simulate(
                 traj.stats["reduced"] = notes[0]
             return traj
     options = {k: v for k, v in options.items() if k not in event_keys}
-    if isinstance(stabilization, str) and stabilization.lower() == "none":
-        stabilization = None
-    if stabilization not in STABILIZATIONS:
-        raise InputError(
-            f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
-            "'projection' or 'dummy_derivatives'"
-        )
+    stabilization = _stabilization(stabilization)
     for name, tol in (("rtol", rtol), ("atol", atol)):
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
             raise InputError(f"simulate: {name} must be a positive number, got {tol!r}")

@@ -201,7 +201,7 @@ def derivative_levels(a: Augmented) -> dict[tuple[str, int], int]:
     for i, nm in enumerate(a.w_names):
         k = by_name(nm)
         lev[("w", i)] = 0 if k is None else k
-    for i in range(a.np_):
+    for i in range(a.n_p):
         lev[("p", i)] = 0
     return lev
 

@@ -119,7 +119,7 @@ def make_guess(prob, guess) -> Guess:
                     w_call[w[1]] = (val, k, len(els))
                 continue
             v = np.broadcast_to(np.asarray(val, float).ravel(), (len(els),))[k]
-            {"x": xg, "z": zg, "w": w_const}.get(w[0], np.zeros(a.np_ + 1))[w[1]] = v
+            {"x": xg, "z": zg, "w": w_const}.get(w[0], np.zeros(a.n_p + 1))[w[1]] = v
     for c in prob.conditions:
         w = a.which(c.expr)
         if c.kind == "initial" and w is not None and w[0] == "x":

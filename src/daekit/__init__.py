@@ -11,7 +11,6 @@ conditions, consistent initialization, simulation with drift control, and optima
 
 from . import events, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
-from .ensemble import Ensemble, ensemble, ensemble_ocp, sample
 from .errors import (
     DaekitError,
     InitializationError,
@@ -24,7 +23,6 @@ from .errors import (
 from .initialize import InitialValues, initialize
 from .mechanics import LagrangianSystem, lagrangian
 from .model import Model
-from .ocp import OCP, Free, OCPSolution
 from .reduced import ReducedDAE
 from .reduction import (
     BaumgarteStiffnessWarning,
@@ -40,14 +38,35 @@ from .simulate import InputError, Trajectory, load_trajectory, simulate
 __version__ = "0.1.0"
 
 
+# The example library (and SciPy's special functions its exact solutions need), optimal
+# control and ensembles are imported on first use, so that ``import daekit`` costs little more
+# than CasADi, NumPy and SciPy.
+_LAZY = {
+    "examples": (".examples", None),
+    "OCP": (".ocp", "OCP"),
+    "Free": (".ocp", "Free"),
+    "OCPSolution": (".ocp", "OCPSolution"),
+    "Ensemble": (".ensemble", "Ensemble"),
+    "ensemble": (".ensemble", "ensemble"),
+    "ensemble_ocp": (".ensemble", "ensemble_ocp"),
+    "sample": (".sampling", "sample"),
+}
+
+
 def __getattr__(name: str):
-    # The example library (and SciPy's special functions its exact solutions need) is imported
-    # on first use, so that ``import daekit`` costs little more than CasADi, NumPy and SciPy.
-    if name == "examples":
+    if name in _LAZY:
         import importlib
 
-        return importlib.import_module(".examples", __name__)
+        module, attr = _LAZY[name]
+        mod = importlib.import_module(module, __name__)
+        value = mod if attr is None else getattr(mod, attr)
+        globals()[name] = value
+        return value
     raise AttributeError(f"module 'daekit' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 
 __all__ = [

@@ -11,6 +11,9 @@ conditions, consistent initialization, simulation with drift control, and optima
 
 from . import events, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
+
+# eager: the function dk.ensemble shares its name with the module daekit.ensemble
+from .ensemble import Ensemble, ensemble, ensemble_ocp, sample
 from .errors import (
     DaekitError,
     InitializationError,
@@ -38,18 +41,14 @@ from .simulate import InputError, Trajectory, load_trajectory, simulate
 __version__ = "0.1.0"
 
 
-# The example library (and SciPy's special functions its exact solutions need), optimal
-# control and ensembles are imported on first use, so that ``import daekit`` costs little more
+# The example library (and SciPy's special functions its exact solutions need) and optimal
+# control are imported on first use, so that ``import daekit`` costs little more
 # than CasADi, NumPy and SciPy.
 _LAZY = {
     "examples": (".examples", None),
     "OCP": (".ocp", "OCP"),
     "Free": (".ocp", "Free"),
     "OCPSolution": (".ocp", "OCPSolution"),
-    "Ensemble": (".ensemble", "Ensemble"),
-    "ensemble": (".ensemble", "ensemble"),
-    "ensemble_ocp": (".ensemble", "ensemble_ocp"),
-    "sample": (".sampling", "sample"),
 }
 
 

@@ -67,13 +67,7 @@ def test_wall_pendulum_impact_times(e, remedy):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("e", [
-    pytest.param(1.0, marks=pytest.mark.xfail(
-        strict=True, reason="1.8e-8 (measured): with e = 1 every swing comes to rest exactly "
-        "at horizontal, where a selection is singular; the dummy-derivative segments "
-        "(re-selected there) lose ~4e-9 per impact")),
-    0.8,
-])
+@pytest.mark.parametrize("e", [1.0, 0.8])
 def test_wall_pendulum_dummy_derivatives(e):
     tr, ref = run_wall(e, "dummy_derivatives")
     check_wall(tr, ref)

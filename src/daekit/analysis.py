@@ -35,14 +35,19 @@ from scipy.sparse.csgraph import connected_components
 
 from .errors import ModelError
 from .model import Model
+from .numerics import (
+    DENSE_LIMIT,
+    RANK_RTOL,  # noqa: F401 - re-exported (older imports)
+    rank_info,
+    sparse_rank_deficiency,
+    sparse_rcond,
+)
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
            "is_index1"]
 
-RANK_RTOL = 1e3 * np.finfo(float).eps
-DENSE_LIMIT = 400  # largest BLT block of the system Jacobian checked by a dense SVD
 EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
 NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array is computed
 ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take many seconds)
@@ -50,47 +55,16 @@ BATCH = 60  # small connected parts are stacked into derivative arrays of about 
 
 
 # ----------------------------------------------------------------------------- numerics
-def _equilibrate(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    for axis in (1, 0):
-        mx = np.max(np.abs(a), axis=axis, keepdims=True) if a.size else a
-        scale = np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-        a = a * scale
-    return a
-
-
 def numeric_rank(a: np.ndarray) -> tuple[int, float]:
     """Rank and reciprocal condition (sigma_min / sigma_max) of a dense matrix after
-    equilibration; see the module docstring for the tolerance."""
-    a = np.atleast_2d(np.asarray(a, dtype=float))
-    if a.size == 0:
-        return 0, 1.0
-    s = np.linalg.svd(_equilibrate(a), compute_uv=False)
-    if s[0] == 0:
-        return 0, 0.0
-    tol = RANK_RTOL * max(a.shape) * s[0]
-    return int(np.sum(s > tol)), float(s[-1] / s[0]) if len(s) == min(a.shape) else 0.0
+    equilibration: :func:`daekit.numerics.rank_info` (the one rank routine).
 
-
-def _sparse_rcond(a: sp.csc_matrix) -> tuple[float, int]:
-    """Estimate of sigma_min / sigma_max of a big square sparse matrix via sparse LU pivots
-    (after equilibration), and the number of pivots below ``RANK_RTOL * n`` times the largest."""
-    a = sp.csc_matrix(a)
-    r = np.asarray(np.abs(a).max(axis=1).todense()).ravel()
-    r[r == 0] = 1.0
-    a = sp.diags(1.0 / r) @ a
-    c = np.asarray(np.abs(a).max(axis=0).todense()).ravel()
-    c[c == 0] = 1.0
-    a = sp.csc_matrix(a @ sp.diags(1.0 / c))
-    try:
-        lu = spla.splu(a, permc_spec="COLAMD")
-    except RuntimeError:  # exactly singular
-        return 0.0, 1
-    d = np.abs(lu.U.diagonal())
-    if not d.size or d.max() == 0:
-        return 0.0, max(a.shape[0], 1)
-    small = int(np.sum(d <= RANK_RTOL * a.shape[0] * d.max()))
-    return float(d.min() / d.max()), small
+    >>> import numpy as np
+    >>> numeric_rank(np.array([[1.0, 1e9], [1e-9, 1.0]]))[0]
+    1
+    """
+    info = rank_info(a)
+    return info.rank, info.rcond
 
 
 # ----------------------------------------------------------------------------- points
@@ -333,14 +307,13 @@ def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
         schur = j_ss - j_sn @ x
     else:
         schur = j_ss
-    u, sv, _ = np.linalg.svd(_equilibrate(schur))
+    info = rank_info(schur)
     m = len(s_rows)
-    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
-    rank_s = int(np.sum(sv > tol))
+    rank_s = info.rank
     if rank_s == m:
         return n, []
-    # left null vectors of the equilibrated Schur complement -> of the Schur complement
-    a_s = u[:, rank_s:] * _row_scale(schur)[:, None]
+    # left null vectors of the Schur complement (in its own coordinates)
+    a_s = info.left_null.T
     weight = np.zeros(n)
     weight[s_rows] = np.linalg.norm(a_s, axis=1)
     if len(n_rows):
@@ -348,14 +321,6 @@ def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
         weight[n_rows] = np.linalg.norm(a_n, axis=1)
     rows = np.nonzero(weight > 1e-8 * weight.max())[0].tolist()
     return len(n_rows) + rank_s, rows
-
-
-def _row_scale(a: np.ndarray) -> np.ndarray:
-    """The row factors of :func:`_equilibrate` (a left null vector ``w`` of the equilibrated
-    matrix ``R A C`` gives ``R w`` for ``A``)."""
-    mx = np.max(np.abs(a), axis=1)
-    r = np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-    return r
 
 
 @dataclass
@@ -377,16 +342,13 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
     size = len(rows)
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
-        u, sv, _ = np.linalg.svd(_equilibrate(sub.toarray()))
-        tol = RANK_RTOL * size * sv[0] if sv.size and sv[0] > 0 else np.inf
-        rank = int(np.sum(sv > tol))
-        rcond = float(sv[-1] / sv[0]) if rank == size else 0.0
-        weight = np.linalg.norm(u[:, rank:], axis=1) if rank < size else np.zeros(size)
-        return _RankCheck(rows, size, rank, rcond, [rows[k] for k in np.nonzero(weight > 1e-8)[0]])
-    rc, small = _sparse_rcond(sub)
-    if rc > RANK_RTOL * size and small == 0:
-        return _RankCheck(rows, size, size, rc, [])
-    return _RankCheck(rows, size, size - max(small, 1), 0.0, rows)
+        info = rank_info(sub)
+        return _RankCheck(rows, size, info.rank, info.rcond,
+                          [rows[k] for k in info.deficient_rows()])
+    small = sparse_rank_deficiency(sub)
+    if small == 0:
+        return _RankCheck(rows, size, size, sparse_rcond(sub), [])
+    return _RankCheck(rows, size, size - small, 0.0, rows)
 
 
 # ----------------------------------------------------------------------------- derivative array

@@ -22,7 +22,7 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
    Singularity is always judged after row and column equilibration (powers of two) with the
-   relative tolerance ``RANK_RTOL * n * sigma_max`` of :mod:`daekit.analysis`, so a regular
+   relative tolerance of :mod:`daekit.numerics`, so a regular
    but badly scaled model (``1e-12 x' + x = 0``) is not mistaken for a singular one.
 
 Inputs: where ``F_i^(c_i)`` needs derivatives of a control ``u``, the symbols ``der(u)``,
@@ -51,7 +51,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..analysis import RANK_RTOL
+from .. import numerics
 from ..errors import ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
@@ -187,7 +187,7 @@ def _left_null(ex: Expansion, seed: int):
     by one sparse solve with the (nonsingular) earlier part, ``J[R<, C<]^T u< = -J[Rk, C<]^T uk``;
     later blocks do not take part (their rows use columns of later blocks only through the
     triangular structure). Singularity is judged after row and column equilibration by powers
-    of two, with the relative tolerance :data:`daekit.analysis.RANK_RTOL` ``* size *
+    of two, with the relative tolerance :data:`daekit.numerics.RANK_RTOL` ``* size *
     sigma_max`` (so ``1e-12 x' + x = 0`` is an ODE, not a singular system).
     """
     n = ex.n
@@ -259,17 +259,11 @@ def _block_left_null(A: sp.csr_matrix, rows, cols):
     Bs = A[rows][:, cols]
     if len(rows) > _DENSE_LIMIT:
         return None if _lu_nonsingular(Bs) else "big"
-    B = Bs.toarray()
-    dr, dc = _scales(B)
-    Be = B * dr[:, None] * dc[None, :]
-    Uv, sv, _ = np.linalg.svd(Be)
-    m = len(rows)
-    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
-    k = int(np.sum(sv <= tol))
-    if k == 0:
+    info = numerics.rank_info(Bs)
+    if info.rank == len(rows):
         return None
-    # u^T B = 0  <=>  (u / dr)^T Be = 0: u = dr * w for w in the left null space of Be
-    return Uv[:, m - k :].T * dr[None, :]
+    # u^T B = 0: the left null vectors, in the block's own (unscaled) coordinates
+    return info.left_null
 
 
 def _extend_left_null(A: sp.csr_matrix, blocks, k: int, W: np.ndarray):
@@ -544,56 +538,18 @@ def _random_points(r: ReducedDAE, seed: int, count: int = 3):
         )
 
 
-def _to_scipy(M: ca.DM) -> sp.csc_matrix:
-    sp_ = M.sparsity()
-    colind, row = sp_.get_ccs()
-    return sp.csc_matrix(
-        (np.asarray(M.nonzeros(), dtype=float), np.asarray(row), np.asarray(colind)),
-        shape=(M.size1(), M.size2()),
-    )
+_to_scipy = numerics.to_scipy
 
 
 def _scales(A) -> tuple[np.ndarray, np.ndarray]:
     """Row and column scale factors (powers of two) that equilibrate ``A`` (dense or sparse):
-    rows first, then columns, as :func:`daekit.analysis.numeric_rank` does. The equilibrated
-    matrix is ``diag(dr) A diag(dc)``; zero rows and columns get factor 1."""
-
-    def pow2(mx):
-        mx = np.asarray(mx, dtype=float).ravel()
-        with np.errstate(divide="ignore"):
-            return np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-
-    if sp.issparse(A):
-        A = sp.csr_matrix(A)
-        absA = abs(A)
-        dr = pow2(absA.max(axis=1).toarray())
-        dc = pow2((sp.diags(dr) @ absA).max(axis=0).toarray())
-    else:
-        absA = np.abs(np.asarray(A, dtype=float))
-        if absA.size == 0:
-            return np.ones(absA.shape[0]), np.ones(absA.shape[1])
-        dr = pow2(absA.max(axis=1))
-        dc = pow2((absA * dr[:, None]).max(axis=0))
-    return dr, dc
-
-
-def _equilibrated(A: sp.spmatrix) -> sp.csc_matrix:
-    dr, dc = _scales(A)
-    return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
+    :func:`daekit.numerics.equilibrate`. The equilibrated matrix is ``diag(dr) A diag(dc)``."""
+    return numerics.equilibrate(A)
 
 
 def _lu_nonsingular(A: sp.spmatrix) -> bool:
-    """Cheap test (no dense SVD): sparse LU of the equilibrated matrix, every pivot above
-    ``RANK_RTOL * n`` times the largest."""
-    n = A.shape[0]
-    if n == 0:
-        return True
-    try:
-        lu = spla.splu(_equilibrated(A))
-    except RuntimeError:  # exactly singular
-        return False
-    u = np.abs(lu.U.diagonal())
-    return bool(u.size == 0 or (u.max() > 0 and u.min() > RANK_RTOL * n * u.max()))
+    """Cheap test (no dense SVD): :func:`daekit.numerics.sparse_nonsingular`."""
+    return numerics.sparse_nonsingular(A)
 
 
 def _singular_rows(A: sp.csc_matrix):
@@ -630,14 +586,10 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
     when ``M`` is nonsingular (smallest singular value above ``RANK_RTOL * n * sigma_max``)."""
     if not np.all(np.isfinite(M)) or M.size == 0:
         return None
-    dr, dc = _scales(M)
-    U, s, _ = np.linalg.svd(M * dr[:, None] * dc[None, :])
-    tol = RANK_RTOL * M.shape[0] * s[0] if s[0] > 0 else np.inf
-    rank = int(np.sum(s > tol))
-    if rank == M.shape[0]:
+    info = numerics.rank_info(M)
+    if info.rank == M.shape[0]:
         return None
-    w = np.linalg.norm(U[:, rank:], axis=1)
-    return sorted(rows[w > 1e-6 * w.max()].tolist())
+    return sorted(rows[info.deficient_rows(1e-6)].tolist())
 
 
 def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:

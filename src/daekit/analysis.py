@@ -42,6 +42,7 @@ from .numerics import (
     sparse_rank_deficiency,
     sparse_rcond,
 )
+from .points import DRAWS, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
 
@@ -68,9 +69,9 @@ def numeric_rank(a: np.ndarray) -> tuple[int, float]:
 
 
 # ----------------------------------------------------------------------------- points
-# Distributions of the random test values, tried in this order until the Jacobians are finite.
-_DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
-          ("uniform", 1.5, 3.0), ("normal", 0.0, 3.0))
+_DRAWS = DRAWS
+_Point = TestPoint
+_check_point = check_point
 
 
 class _NonFinite(Exception):
@@ -79,86 +80,6 @@ class _NonFinite(Exception):
     def __init__(self, labels: list[str]) -> None:
         super().__init__(", ".join(labels))
         self.labels = labels
-
-
-class _Point:
-    """Numeric values for every symbol of a model (unknowns and derivatives, controls, t,
-    parameters): the user's values where given, defaults for parameters, random elsewhere
-    (drawn from ``_DRAWS[attempt]``, seeded by ``seed`` and ``attempt``)."""
-
-    def __init__(self, model: Model, point: dict | None, seed: int = 0, attempt: int = 0) -> None:
-        self.model = model
-        self.rng = np.random.default_rng(seed + 7919 * attempt)
-        self.draw = _DRAWS[attempt]
-        self.values: dict[int, float] = {}  # element hash -> value
-        point = _check_point(model, point)
-        self.t = point["t"][0] if "t" in point else float(self._random(1)[0])
-        for var in model.parameters:
-            for i in range(var.size):
-                self.values[var.sym[i].element_hash()] = float(var.default[i])
-        for name, arr in point.items():
-            if name == "t":
-                continue
-            for (var, i, order), v in zip(model.resolve(name), arr, strict=True):
-                self.values[var.der(order)[i].element_hash()] = float(v)
-
-    def _random(self, size: int) -> np.ndarray:
-        kind, a, b = self.draw
-        # the first draw: small positive values, generic and safe for sqrt, log and exp of
-        # differences; the later ones reach other parts of a model's domain
-        return self.rng.uniform(a, b, size) if kind == "uniform" else self.rng.normal(a, b, size)
-
-    def evaluate(self, syms: list[ca.SX]) -> np.ndarray:
-        out = np.empty(len(syms))
-        for k, s in enumerate(syms):
-            h = s.element_hash()
-            if h not in self.values:
-                self.values[h] = float(self._random(1)[0])
-            out[k] = self.values[h]
-        return out
-
-    def sparse(self, expr: ca.SX) -> sp.csr_matrix:
-        """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix."""
-        th = self.model.t.element_hash()
-        syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
-        f = ca.Function("at_point", [self.model.t, ca.vertcat(*syms)], [expr])
-        val = ca.DM(f(self.t, self.evaluate(syms)))
-        r, c = val.sparsity().get_triplet()
-        return sp.csr_matrix((np.asarray(val.nonzeros(), dtype=float), (r, c)), shape=val.shape)
-
-
-def _check_point(model: Model, point) -> dict[str, np.ndarray]:
-    """The user's ``point`` as {name: values}, each checked for type, size and finiteness."""
-    if point is None:
-        return {}
-    if not isinstance(point, dict):
-        raise ModelError(
-            f"model {model.name!r}: point must be a dict of values by name, e.g. "
-            f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"
-        )
-    out = {}
-    for name, val in point.items():
-        if not isinstance(name, str):
-            raise ModelError(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
-        size = 1 if name == "t" else len(model.resolve(name))
-        try:
-            arr = np.asarray(val, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric; give "
-                + ("a number" if size == 1 else f"a number or {size} numbers")
-            ) from None
-        if arr.size == 1:
-            arr = np.full(size, arr[0])
-        if arr.size != size:
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
-                f"{size} element(s); give {size} values (or one for all)"
-            )
-        if not np.all(np.isfinite(arr)):
-            raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
-        out[name] = arr
-    return out
 
 
 def _at_finite_point(model: Model, point: dict | None, seed: int, work, what: str):
@@ -481,8 +402,8 @@ def _short(names: list[str], limit: int = 10) -> str:
     return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")
 
 
-def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str
-                      ) -> DerivativeArrayResult:
+def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
+                      soft: bool = False) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
     new derivatives), assembled into dense matrices for the rank decisions."""
@@ -504,7 +425,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     state_r = [r for sj in s_ord for r in range(sj)]
     X_s = model.symbols_at(state_j, state_r)
     level = model.residual[rows]
-    blocks: list[sp.csr_matrix] = []  # Jacobian rows of each level w.r.t. [columns, states]
+    levels: list[ca.SX] = []  # the array's levels F, F', ..., F^(k) of these equations
     ranks: list[tuple[int, int, int]] = []
     for k in range(max_index + 1):
         if k > 0:
@@ -521,6 +442,8 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             col_r += [int(mj) + k for mj in m]
             target += [int(mj) + k == sj for sj, mj in zip(s_ord, m)]
         if (k + 1) * len(rows) > ARRAY_LIMIT:
+            if soft:
+                return None
             raise ModelError(
                 f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
                 f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
@@ -529,29 +452,43 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 "unknowns at all"
             )
         X = model.symbols_at(col_j, col_r)
-        blk = pt.sparse(ca.jacobian(level, ca.vertcat(X, X_s)))
-        _require_finite(blk, lambda r, k=k: _der_eq(eq_names[rows[r]], k))
-        blocks.append(blk)
-        width = len(col_j) + len(state_j)
-        full = sp.vstack([sp.hstack([b[:, : b.shape[1] - len(state_j)],
-                                     sp.csr_matrix((b.shape[0], width - b.shape[1])),
-                                     b[:, b.shape[1] - len(state_j):]]) for b in blocks]).toarray()
-        jac, jac_s = full[:, : len(col_j)], full[:, len(col_j):]
+        levels.append(level)
+        arr = ca.vertcat(*levels)
+        jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
         tgt = np.array(target)
-        r_all, _ = numeric_rank(jac)
-        r_rest, _ = numeric_rank(jac[:, ~tgt])
+        r_all = r_rest = r_full = -1
+        for q in _array_points(pt, arr):
+            full = q.sparse(jac_sym)
+            _require_finite(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
+                                                    r // len(rows)))
+            full = full.toarray()
+            jac = full[:, : len(col_j)]
+            r_all = max(r_all, numeric_rank(jac)[0])
+            r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
+            r_full = max(r_full, numeric_rank(full)[0] if len(state_j) else 0)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
-            r_full, _ = numeric_rank(np.hstack([jac, jac_s])) if len(state_j) else (r_all, 0)
-            constraints = r_full - r_all
+            constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
+    if soft:
+        return None
     raise ModelError(
         f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
         f"determine all derivatives of the equations {_short([eq_names[i] for i in rows], 6)}; "
         "the model may be singular (not uniquely solvable) at the test point; try another "
         "point (point=...)"
     )
+
+
+def _array_points(pt: _Point, arr: ca.SX) -> list[_Point]:
+    """Two points on ``arr = 0`` (``pt`` itself, moved, and a sibling), or ``[pt]`` as it is
+    when no consistent point is found (then ``pt.status`` says so)."""
+    st = consistent_point(pt, arr)
+    if not st.consistent:
+        return [pt]
+    other = pt.sibling(1)
+    return [pt, other] if consistent_point(other, arr).consistent else [pt]
 
 
 # ----------------------------------------------------------------------------- analyze
@@ -613,6 +550,8 @@ class Analysis:
     sigma: list[tuple[str, str, int]] = field(default_factory=list)
     singular_blocks: list[list[str]] = field(default_factory=list)
     structural_part: tuple[int, int] | None = None
+    test_points: str = "at a random point"
+    index_confirmed: tuple | None = None
     _model: Model | None = field(default=None, repr=False, compare=False)
     _definitions: list[str] | None = field(default=None, repr=False, compare=False)
 
@@ -736,18 +675,34 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     eq_names, var_names = model.equation_names, model.unknown_names
     keep = inc.vals == d[inc.cols] - c[inc.rows]
 
+    from .reduction.differentiate import expand
+
+    ex = expand(model, validate=False)
+    expansion = ca.vertcat(*ex.levels)  # F_i^(k), k <= c_i: the points are made consistent
+    jrows, jcols, jvals = inc.rows[keep], inc.cols[keep], inc.vals[keep]
+
     def work(pt: _Point):
-        jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
+        status = consistent_point(pt, expansion)
+        jac = _sparse_jacobian(model, jrows, jcols, jvals, pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
         checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        if status.consistent and any(ch.rank < ch.size for ch in checks):
+            # singular at one consistent point: confirm at a second (the generic rank is the
+            # larger); nonsingular at one consistent point already proves SA's success
+            pt2 = pt.sibling(1)
+            if consistent_point(pt2, expansion).consistent:
+                jac2 = _sparse_jacobian(model, jrows, jcols, jvals, pt2)
+                checks = [ch if ch.rank == ch.size else
+                          max(ch, _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
+                          for ch, (br, bc) in zip(checks, blocks_idx, strict=True)]
         rcond = min((ch.rcond for ch in checks), default=1.0)
         singular = [ch.rows for ch in checks if ch.rank < ch.size]
         numeric, part = None, None
         index, dof = sig.index, sig.dof
+        eq_lab, unk_lab = _components(inc)
+        comps = np.unique(eq_lab[np.concatenate(singular)]) if singular else np.zeros(0, int)
         if singular:
-            eq_lab, unk_lab = _components(inc)
-            comps = np.unique(eq_lab[np.concatenate(singular)])
             numeric = _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "analyze",
                                     [eq_names[i] for b in singular for i in b])
             rest_e = ~np.isin(eq_lab, comps)
@@ -757,10 +712,18 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
             index, dof = max(part[0], numeric.index), part[1] + numeric.dof
             if not rest_e.any():
                 part = None
-        return jac, blocks_idx, rcond, singular, numeric, part, index, dof, _easy_test(model, pt)
+        confirmed = _confirm_index(model, eq_lab, unk_lab, comps, c, d, pt,
+                                   numeric.index if numeric is not None else 0)
+        if confirmed is not None:
+            index = confirmed[0]
+            if part is not None:
+                part = (confirmed[0], part[1])
+        easy = _easy_test(model, pt)
+        return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
+                pt.status, confirmed)
 
-    jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy = _at_finite_point(
-        model, point, seed, work, "analyze")
+    (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
+     confirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(
@@ -785,7 +748,79 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         n_inputs=sum(v.size for v in model.controls),
         singular_blocks=[[eq_names[i] for i in b] for b in singular],
         structural_part=part,
+        test_points=_describe_points(model, status, expansion_names(ex)),
+        index_confirmed=confirmed,
     )
+
+
+#: Largest connected part (unknowns) whose structural index is checked against the derivative
+#: array when structural analysis succeeds (the structural index is only an upper bound).
+CONFIRM_LIMIT = 60
+
+
+def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor: int):
+    """Where structural analysis succeeds Pryce's index is an upper bound of the differential
+    index. The model's index is the largest of its connected parts', so only the parts that
+    attain the largest structural index are checked, largest first, each only if it has at
+    most ``CONFIRM_LIMIT`` unknowns: the derivative array (at consistent points) up to one
+    level below its structural index. Returns ``(index, [(equations, structural, found)])``
+    when some part's index is lower and the model's index drops, else None."""
+    parts = []
+    for comp in np.unique(eq_lab):
+        if comp in set(np.asarray(skip).tolist()):
+            continue
+        rows = np.nonzero(eq_lab == comp)[0]
+        cols = np.nonzero(unk_lab == comp)[0]
+        parts.append((structural_index(c[rows], d[cols]), rows, cols))
+    if not parts:
+        return None
+    top = max(p[0] for p in parts)
+    if top <= max(floor, 0):
+        return None
+    inc = model.incidence()
+    m_all = np.zeros(inc.n_unknowns, dtype=np.int64)
+    np.maximum.at(m_all, inc.cols, inc.vals)
+    found, lowered = [], []
+    for nu, rows, cols in sorted(parts, key=lambda p: -p[0]):
+        if nu < top:
+            found.append(nu)
+            continue
+        if len(cols) > CONFIRM_LIMIT:
+            return None
+        try:
+            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True)
+        except (ModelError, _NonFinite):
+            res = None
+        if res is None:
+            return None  # this part has the structural index: the model's index stays
+        found.append(res.index)
+        lowered.append(([model.equation_names[i] for i in rows], nu, res.index))
+    index = max(max(found), floor)
+    return (index, lowered) if index < top else None
+
+
+def expansion_names(ex) -> list[str]:
+    """Names of the rows of ``vertcat(ex.levels)``: ``"rod"``, ``"d/dt rod"``, ..."""
+    out = []
+    for k, rk in enumerate(ex.rows):
+        out += [_der_eq(ex.equation_names[i], k) for i in rk]
+    return out
+
+
+def _describe_points(model: Model, status, names: list[str]) -> str:
+    """One sentence for explain(): where the numeric tests were evaluated."""
+    if status is None:
+        return "at a random point"
+    if status.consistent:
+        if status.given:
+            return "at your point (it satisfies the equations and their derivatives)"
+        return ("at consistent points (the equations and their needed derivatives hold there "
+                f"to {max(status.residual, 1e-16):.0e}, found by Gauss-Newton)")
+    worst = [names[i] for i in (status.worst or []) if i < len(names)][:4]
+    return ("at a RANDOM point: no consistent point was found (Gauss-Newton left a relative "
+            f"residual of {status.residual:.1e}" + (f" in {', '.join(worst)}" if worst else "")
+            + "); the numeric results may not hold on the solutions -- give a consistent "
+            "point=")
 
 
 def _definitions(model: Model) -> list[int]:

@@ -377,6 +377,15 @@ def _numeric_part(model: Model, eq_lab, unk_lab, comps, pt: _Point, max_index, w
     )
 
 
+def _require_small(model: Model, eq_lab, comps, what: str, singular: list[str]) -> None:
+    """Raise the error of :func:`_too_big` for the first of ``comps`` too big for the
+    derivative array."""
+    for comp in comps:
+        rows = np.nonzero(eq_lab == comp)[0]
+        if len(rows) > NUMERIC_LIMIT:
+            raise _too_big(model, rows, what, singular)
+
+
 def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> ModelError:
     eq_names = model.equation_names
     part = (f"the connected part of the model that contains them (equations linked by shared "
@@ -620,7 +629,13 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
     return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
 
 
-def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
+#: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
+#: rows than this are tested at a random point unless ``analyze(..., consistent=True)``.
+POINT_LIMIT = 2000
+
+
+def analyze(model: Model, point: dict | None = None, seed: int = 0,
+            consistent: bool | None = None) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
     analysis is trustworthy here, the differential index, the DOF, and the easy test.
 
@@ -654,7 +669,15 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     point : dict, optional
         Values of variables and derivatives by name (``"p"``, ``"der(p)"``, ``"t"``) at which
         Jacobians are evaluated; missing values are drawn at random (seeded by ``seed``;
-        other draws follow where the model is not defined at the first one).
+        other draws follow where the model is not defined at the first one). The values are
+        then made consistent (see ``consistent``): the ones given are held where they admit
+        a consistent completion, else they are only the start of the search.
+    consistent : bool, optional
+        Evaluate the numeric tests at consistent points (on the solution manifold, found by
+        Gauss--Newton on the equations and their derivatives up to Pryce's offsets,
+        :mod:`daekit.points`); the system Jacobian is confirmed singular at a second such
+        point. Default (None): yes up to ``POINT_LIMIT`` equations and derivatives, a random
+        point beyond (``explain()`` says which was used).
 
     Example
     -------
@@ -677,30 +700,48 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
 
     from .reduction.differentiate import expand
 
-    ex = expand(model, validate=False)
-    expansion = ca.vertcat(*ex.levels)  # F_i^(k), k <= c_i: the points are made consistent
+    if consistent is None:
+        consistent = int((c + 1).sum()) <= POINT_LIMIT
+    ex = expand(model, validate=False) if consistent else None
+    # F_i^(k), k <= c_i: the points are made consistent with these
+    expansion = ca.vertcat(*ex.levels) if consistent else None
     jrows, jcols, jvals = inc.rows[keep], inc.cols[keep], inc.vals[keep]
 
+    eq_lab, unk_lab = _components(inc)
+
     def work(pt: _Point):
-        status = consistent_point(pt, expansion)
+        # 1. at the random point: a block singular there is singular on the solutions too
+        #    (the rank there is the generic one), so structural analysis fails for sure
         jac = _sparse_jacobian(model, jrows, jcols, jvals, pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
         checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
-        if status.consistent and any(ch.rank < ch.size for ch in checks):
-            # singular at one consistent point: confirm at a second (the generic rank is the
-            # larger); nonsingular at one consistent point already proves SA's success
-            pt2 = pt.sibling(1)
-            if consistent_point(pt2, expansion).consistent:
-                jac2 = _sparse_jacobian(model, jrows, jcols, jvals, pt2)
-                checks = [ch if ch.rank == ch.size else
-                          max(ch, _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
-                          for ch, (br, bc) in zip(checks, blocks_idx, strict=True)]
+        sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
+        if sing0:  # too big for the derivative array: say so before any further work
+            _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
+                           [eq_names[i] for b in sing0 for i in b])
+        # 2. at a consistent point: a block can be singular on the solutions only (a
+        #    constraint times a function that vanishes there, gp_scaled); confirmed at a
+        #    second consistent point, as the rank on the manifold is the larger of the two
+        status = consistent_point(pt, expansion) if consistent else None
+        if status is not None and status.consistent:
+            jac_c = _sparse_jacobian(model, jrows, jcols, jvals, pt)
+            new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
+                   if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
+            if new:
+                pt2 = pt.sibling(1)
+                jac2 = (_sparse_jacobian(model, jrows, jcols, jvals, pt2)
+                        if consistent_point(pt2, expansion).consistent else None)
+                for k in new:
+                    br, bc = blocks_idx[k]
+                    ch = _rank_check(jac_c, br, bc)
+                    if jac2 is not None:
+                        ch = max(ch, _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
+                    checks[k] = ch
         rcond = min((ch.rcond for ch in checks), default=1.0)
         singular = [ch.rows for ch in checks if ch.rank < ch.size]
         numeric, part = None, None
         index, dof = sig.index, sig.dof
-        eq_lab, unk_lab = _components(inc)
         comps = np.unique(eq_lab[np.concatenate(singular)]) if singular else np.zeros(0, int)
         if singular:
             numeric = _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "analyze",
@@ -748,7 +789,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         n_inputs=sum(v.size for v in model.controls),
         singular_blocks=[[eq_names[i] for i in b] for b in singular],
         structural_part=part,
-        test_points=_describe_points(model, status, expansion_names(ex)),
+        test_points=_describe_points(model, status, expansion_names(ex) if ex else []),
         index_confirmed=confirmed,
     )
 
@@ -810,7 +851,8 @@ def expansion_names(ex) -> list[str]:
 def _describe_points(model: Model, status, names: list[str]) -> str:
     """One sentence for explain(): where the numeric tests were evaluated."""
     if status is None:
-        return "at a random point"
+        return (f"at a random point (the model is large: more than {POINT_LIMIT} equations "
+                "and derivatives; analyze(model, consistent=True) finds a consistent one)")
     if status.consistent:
         if status.given:
             return "at your point (it satisfies the equations and their derivatives)"

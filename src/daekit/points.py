@@ -36,7 +36,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import ModelError
-from .numerics import equilibrate, to_scipy
+from .numerics import SparseFunction, equilibrate, to_scipy
 
 __all__ = ["TestPoint", "PointStatus", "check_point", "make_consistent", "consistent_point", "gauss_newton",
            "DRAWS"]
@@ -236,15 +236,15 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float) -> Po
              if s.element_hash() not in moving and s.element_hash() != model.t.element_hash()]
     W = ca.vertcat(*syms) if syms else ca.SX(0, 1)
     Fx = ca.vertcat(*fixed) if fixed else ca.SX(0, 1)
-    f = ca.Function("consistency", [model.t, Fx, W], [G, ca.jacobian(G, W)])
+    f = ca.Function("consistency", [model.t, Fx, W], [G])
+    fj = SparseFunction([model.t, Fx, W], ca.jacobian(G, W))
     fv = pt.evaluate(fixed)
     w0 = pt.evaluate(syms)
 
     def fun(w):
-        h, J = f(pt.t, fv, w)
-        return np.asarray(h, dtype=float).ravel(), to_scipy(J).tocsr()
+        return np.asarray(f(pt.t, fv, w), dtype=float).ravel()
 
-    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter)
+    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter, jac=lambda w: fj(pt.t, fv, w))
     if st.consistent:
         pt.assign(syms, w)
     return st
@@ -274,14 +274,14 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3) -> PointS
     return st
 
 
-def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
+def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60, jac=None
                  ) -> tuple[np.ndarray, PointStatus]:
-    """Solve the (under- or over-determined) ``h(w) = 0``, ``fun(w) -> (h, J)`` with ``J``
-    sparse, by Gauss--Newton with minimum-norm (Levenberg--Marquardt regularized) steps and a
-    backtracking line search, in the coordinates of the equilibrated first Jacobian (rows and
-    columns scaled, :func:`daekit.numerics.equilibrate`), so that the units of equations and
-    unknowns do not matter. Converged when every scaled residual is below ``tol`` times
-    ``1 + max |w|`` (scaled).
+    """Solve the (under- or over-determined) ``h(w) = 0`` by Gauss--Newton with minimum-norm
+    steps, a trust radius and a backtracking line search, in the coordinates of the
+    equilibrated first Jacobian (rows and columns scaled, :func:`daekit.numerics.equilibrate`),
+    so that the units of equations and unknowns do not matter. ``fun(w) -> h`` and
+    ``jac(w) -> J`` (sparse); without ``jac``, ``fun(w) -> (h, J)``. Converged when every
+    scaled residual is below ``tol`` times ``1 + max |w|`` (scaled).
 
     >>> import numpy as np, scipy.sparse as sp
     >>> fun = lambda w: (np.array([w[0]**2 + w[1]**2 - 1]), sp.csr_matrix([[2*w[0], 2*w[1]]]))
@@ -289,14 +289,18 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     >>> st.consistent, round(float(w @ w), 12)
     (True, 1.0)
     """
+    if jac is None:
+        both = fun
+        fun = lambda w: both(w)[0]  # noqa: E731
+        jac = lambda w: both(w)[1]  # noqa: E731
     w = np.array(w0, dtype=float)
-    h, J = fun(w)
+    h = np.asarray(fun(w), dtype=float)
     if h.size == 0:
         return w, PointStatus(True, 0.0, 0)
+    J = jac(w)
     if not (np.all(np.isfinite(h)) and np.all(np.isfinite(J.data))):
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
-    # rows that have no Jacobian entry keep scale 1; columns too
     n = w.size
 
     def merit(hv):
@@ -305,35 +309,45 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     def level(wv):
         return tol * (1.0 + float(np.max(np.abs(wv / dc)))) if n else tol
 
+    def finite(hv):
+        return bool(np.all(np.isfinite(hv)))
+
     r = merit(h)
+    radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
     for it in range(max_iter + 1):
         if r.max() <= level(w):
             if r.max() > 0 and n:  # one more full step: Newton's convergence is quadratic
                 d = _min_norm_step(sp.diags(dr) @ J @ sp.diags(dc), dr * h)
                 if d is not None and np.all(np.isfinite(d)):
-                    hn, Jn = fun(w + dc * d)
-                    if np.all(np.isfinite(hn)) and merit(hn).max() < r.max():
+                    hn = fun(w + dc * d)
+                    if finite(hn) and merit(hn).max() < r.max():
                         w, r = w + dc * d, merit(hn)
             return w, PointStatus(True, float(r.max()), it)
         if it == max_iter or n == 0:
             break
-        Js = sp.diags(dr) @ J @ sp.diags(dc)
-        d = _min_norm_step(Js, dr * h)
+        if it:
+            J = jac(w)
+            if not np.all(np.isfinite(J.data)):
+                break
+        d = _min_norm_step(sp.diags(dr) @ J @ sp.diags(dc), dr * h)
         if d is None or not np.all(np.isfinite(d)):
             break
-        d = dc * d
-        alpha, norm0 = 1.0, np.linalg.norm(r)
-        for _ in range(20):
-            wn = w + alpha * d
-            hn, Jn = fun(wn)
-            if np.all(np.isfinite(hn)) and np.all(np.isfinite(Jn.data)):
+        size = float(np.max(np.abs(d))) if d.size else 0.0
+        alpha = min(1.0, radius / size) if size > 0 else 1.0
+        norm0 = np.linalg.norm(r)
+        for _ in range(30):
+            wn = w + alpha * dc * d
+            hn = fun(wn)
+            if finite(hn):
                 rn = merit(hn)
                 if np.linalg.norm(rn) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
                     break
             alpha *= 0.5
         else:
             break
-        w, h, J, r = wn, hn, Jn, rn
+        radius = 4.0 * alpha * size if alpha * size * 1.5 >= radius else max(alpha * size, 1e-8)
+        radius = max(radius, 1e-3 * (1.0 + float(np.max(np.abs(wn / dc)))))
+        w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
 
 

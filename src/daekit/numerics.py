@@ -45,7 +45,7 @@ import scipy.sparse.linalg as spla
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction"]
+           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "redundant_rows"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -53,6 +53,11 @@ RANK_RTOL = 1e3 * np.finfo(float).eps
 DENSE_LIMIT = 400
 #: Most sweeps of Ruiz's equilibration.
 RUIZ_ITERATIONS = 30
+#: Entries below this fraction of their row's and column's largest (max-norm equilibrated)
+#: do not steer the scaling (rounding residue of exact zeros).
+NOISE = 1e-13
+#: Entries below this fraction of their row's largest (unscaled) count as zero for the scaling.
+ROW_NOISE = 1e-20
 
 
 def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:
@@ -114,8 +119,34 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     m, n = B.shape
     if m == 0 or n == 0:
         return np.ones(m), np.ones(n)
-    lr, lc = _curtis_reid(B)
+    # entries below ROW_NOISE of their row's largest are rounding residue of exact zeros
+    # (2.5e-31 where a value is 0 up to rounding): no units within 1e-6..1e6 make them
+    # significant, and a column of them only must not be scaled up to unit size
+    if issparse:
+        rmax0 = B.max(axis=1).toarray().ravel()
+        B = B.tocoo()
+        sig = B.data > ROW_NOISE * rmax0[B.row]
+        B = sp.csr_matrix((B.data[sig], (B.row[sig], B.col[sig])), shape=(m, n))
+    else:
+        B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
+    dr, dc = _ruiz(B, np.ones(m), np.ones(n), issparse)
+    # entries below NOISE of both their row's and column's largest (after Ruiz) are rounding
+    # residue (an exact zero at a consistent point computed as 1e-17): they would dominate a
+    # least-squares fit of the logarithms, so Curtis--Reid ignores them
+    S = (sp.diags(dr) @ B @ sp.diags(dc)).tocsr() if issparse else B * dr[:, None] * dc[None, :]
+    if issparse:
+        S.data[S.data <= NOISE] = 0.0
+        S.eliminate_zeros()
+        keep = sp.diags(1.0 / dr) @ S @ sp.diags(1.0 / dc)
+    else:
+        keep = np.where(S > NOISE, B, 0.0)
+    lr, lc = _curtis_reid(keep)
     dr, dc = np.exp2(np.round(lr)), np.exp2(np.round(lc))
+    return _ruiz(B, dr, dc, issparse)
+
+
+def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:
+    """Ruiz's iteration in the max norm from the factors ``dr``, ``dc``."""
     for _ in range(RUIZ_ITERATIONS):
         if issparse:
             S = sp.diags(dr) @ B @ sp.diags(dc)
@@ -230,6 +261,53 @@ def left_null_space(A, rtol: float = RANK_RTOL) -> np.ndarray:
     ((1, 2), True)
     """
     return rank_info(A, rtol).left_null
+
+
+def redundant_rows(C, F, rtol: float = 1e-8) -> list[int]:
+    """Rows of ``F`` implied by the rows of ``C`` and by the rows of ``F`` before them that
+    are not (in order), decided scale-invariantly.
+
+    The columns are scaled as in the equilibrated ``C`` (stacked on ``F``); ``V`` is an
+    orthonormal basis of the directions ``C`` leaves free (its null space); each row of
+    ``F``, scaled and normalized, is projected on ``V``: when less than ``rtol`` of it is left
+    it is redundant; else ``V`` loses that direction.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> C = np.array([[-1e6, 1.0]])             # z - 1e6 x = 0
+    >>> redundant_rows(C, np.array([[1.0, 0.0], [0.0, 1.0]]))   # x fixed, then z
+    [1]
+    """
+    C = C.toarray() if sp.issparse(C) else np.atleast_2d(np.asarray(C, dtype=float))
+    F = F.toarray() if sp.issparse(F) else np.atleast_2d(np.asarray(F, dtype=float))
+    n = F.shape[1]
+    if F.shape[0] == 0:
+        return []
+    _, dc = equilibrate(np.vstack([C, F]) if C.size else F)
+    if C.shape[0]:
+        info = rank_info(C * dc[None, :])
+        # null vectors of C diag(dc), orthonormalized in those same coordinates
+        V = np.linalg.qr(info.null.T)[0] if info.null.shape[0] else np.zeros((n, 0))
+    else:
+        V = np.eye(n)
+    out = []
+    W = np.zeros((n, 0))  # accepted directions: orthonormal, inside span(V)
+    for k, row in enumerate(F * dc[None, :]):
+        nrm = np.linalg.norm(row)
+        if nrm == 0 or V.shape[1] == W.shape[1]:
+            out.append(k)
+            continue
+        row = row / nrm
+        p = V @ (V.T @ row)
+        for _ in range(2):  # twice, for orthogonality to working precision
+            p = p - W @ (W.T @ p)
+        pn = np.linalg.norm(p)
+        if pn <= rtol:
+            out.append(k)
+        else:
+            W = np.hstack([W, (p / pn)[:, None]])
+    return out
 
 
 def _splu_pivots(A) -> np.ndarray | None:

@@ -47,7 +47,7 @@ from .structure import block_triangular, dulmage_mendelsohn, sigma_method, struc
 from .structure.sigma import NoTransversal
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
-           "is_index1"]
+           "is_index1", "derivative_array_dof"]
 
 EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
 NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array is computed
@@ -327,6 +327,34 @@ def differential_index(
                              "differential_index")
 
     return _at_finite_point(model, point, seed, work, "differential_index")
+
+
+def derivative_array_dof(model: Model, equations: list[str], seed: int = 0):
+    """DOF of the connected parts of ``model`` (linked by shared unknowns) that contain the
+    named equations, from the derivative array at consistent points; also the equation and
+    unknown indices of those parts. Used to check the amendments of
+    :func:`daekit.reduce_index`.
+
+    Example
+    -------
+    >>> import daekit as dk
+    >>> derivative_array_dof(dk.examples.gear_petzold(), ["dynamic"])[0]
+    0
+    """
+    inc = model.incidence()
+    eq_lab, unk_lab = _components(inc)
+    names = model.equation_names
+    want = [i for i, nm in enumerate(names) if nm in set(equations) or nm.split("[")[0] in
+            set(equations)]
+    comps = np.unique(eq_lab[want])
+
+    def work(pt: _Point):
+        return _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "reduce_index")
+
+    res = _at_finite_point(model, None, seed, work, "reduce_index")
+    rows = np.nonzero(np.isin(eq_lab, comps))[0]
+    cols = np.nonzero(np.isin(unk_lab, comps))[0]
+    return res.dof, rows, cols
 
 
 def _components(inc) -> tuple[np.ndarray, np.ndarray]:

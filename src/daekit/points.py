@@ -38,8 +38,8 @@ import scipy.sparse.linalg as spla
 from .errors import ModelError
 from .numerics import SparseFunction, equilibrate, to_scipy
 
-__all__ = ["TestPoint", "PointStatus", "check_point", "make_consistent", "consistent_point", "gauss_newton",
-           "DRAWS"]
+__all__ = ["TestPoint", "PointStatus", "check_point", "make_consistent", "consistent_point",
+           "gauss_newton", "reduced_consistent_point", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -380,3 +380,36 @@ def _min_norm_step(J: sp.csr_matrix, h: np.ndarray) -> np.ndarray | None:
     sol = lu.solve(rhs)
     sol = sol + lu.solve(rhs - K @ sol)  # one step of iterative refinement
     return sol[:n]
+
+
+def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 3):
+    """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
+    holds (time and inputs random, parameters at their values), or None when Gauss--Newton
+    finds none from ``starts`` random starts.
+
+    >>> import casadi as ca, numpy as np
+    >>> import daekit as dk
+    >>> r = dk.reduce_index(dk.examples.l3())
+    >>> t, x, z, u, p = reduced_consistent_point(r)
+    >>> bool(abs(ca.Function("c", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(t, x, z, u, p)[0]) < 1e-10)
+    True
+    """
+    rng = np.random.default_rng(seed + 31)
+    n = r.nx + r.nz
+    w = ca.SX.sym("w", n)
+    t_s = ca.SX.sym("t")
+    u_s = ca.SX.sym("u", r.nu)
+    G = ca.vertcat(ca.vec(r.alg), ca.vec(r.invariants) if r.invariants.numel() else ca.SX(0, 1))
+    G = ca.substitute([G], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
+                      [t_s, w, u_s, ca.DM(r.p_values)])[0]
+    f = ca.Function("g", [t_s, u_s, w], [G])
+    fj = SparseFunction([t_s, u_s, w], ca.jacobian(G, w))
+    for k in range(starts):
+        tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
+        uv = rng.uniform(0.2, 1.2, r.nu)
+        w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
+        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: np.asarray(f(tv, uv, x), dtype=float).ravel(),
+                              w0, jac=lambda x, tv=tv, uv=uv: fj(tv, uv, x))
+        if st.consistent:
+            return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
+    return None

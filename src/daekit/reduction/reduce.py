@@ -52,7 +52,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .. import numerics
-from ..errors import ReductionError
+from ..errors import DaekitError, ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
@@ -156,7 +156,53 @@ def reduce_index(
     ]
     if check:
         check_index1(r, seed=seed)
+        if amendments:
+            check_amendments(model, r, seed=seed)
     return r
+
+
+def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
+    """After the linear-combination amendment: the reduced system must have as many degrees
+    of freedom as the model. For the connected parts of the model that contain the replaced
+    equations, the amended system (structural analysis now succeeds on it, the index-1 check
+    has passed) has ``sum d - sum c`` of its offsets; the model has the derivative array's
+    DOF at consistent points (:func:`daekit.analysis.derivative_array_dof`). Where they differ
+    the amended system is not equivalent (a hidden constraint was lost or one too many
+    imposed) and a :class:`ReductionError` names the replaced equations instead of returning
+    a wrong system. ``r.info["amendment_check"]`` says what was compared.
+    """
+    from ..analysis import derivative_array_dof
+
+    names = model.equation_names
+    replaced = []
+    for note in r.info.get("amendments", []):
+        if "equation " in note and " was replaced" in note:
+            nm = note.split("equation ", 1)[1].split(" was replaced")[0].strip("'\"")
+            if nm in names:
+                replaced.append(nm)
+    if not replaced:
+        r.info["amendment_check"] = "not checked (replaced equations unknown)"
+        return
+    try:
+        truth, rows, cols = derivative_array_dof(model, replaced, seed=seed)
+    except DaekitError as exc:
+        r.info["amendment_check"] = f"not checked ({exc})"
+        return
+    c, d = r.info["offsets"]["c"], r.info["offsets"]["d"]
+    dof = int(d[cols].sum() - c[rows].sum())
+    r.info["amendment_check"] = (f"amended system: {dof} DOF, derivative array: {truth} DOF "
+                                 f"(in the {len(rows)} equations coupled to the replaced ones)")
+    if dof != truth:
+        raise ReductionError(
+            f"model {model.name!r}: the linear-combination amendment of the equations "
+            f"{', '.join(repr(x) for x in replaced)} gives a reduced system with {dof} degrees "
+            f"of freedom in the equations coupled to them, but the model has {truth} there "
+            "(derivative array at consistent points): the amended system is not equivalent. "
+            "The cancellation in these equations is not the constant combination the amendment "
+            "assumes; rewrite them so that the structure shows the true dependencies (solve one "
+            "of them for a variable and substitute it), or use daekit.analyze(model) for the "
+            "numeric index and DOF."
+        )
 
 
 # ---------------------------------------------------------------------------- SA amendment
@@ -592,12 +638,46 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
     return sorted(rows[info.deficient_rows(1e-6)].tolist())
 
 
+#: Reduced systems with at most this many unknowns are checked at consistent points too.
+CONSISTENT_CHECK_LIMIT = 1000
+
+
+def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
+    """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
+    or None (nonsingular at one of them, or no consistent point found, or too big); sets
+    ``r.info["index1_check"]``."""
+    from ..points import reduced_consistent_point
+
+    if r.nx + r.nz > CONSISTENT_CHECK_LIMIT:
+        r.info["index1_check"] = "passed"
+        r.info["index1_check_at"] = "a random point (too big for a consistent one)"
+        return None
+    bad = None
+    for k in range(2):
+        cp = reduced_consistent_point(r, seed + 1000 * k)
+        if cp is None:
+            r.info["index1_check"] = "passed"
+            r.info["index1_check_at"] = "a random point (no consistent point found)"
+            return None
+        A = _to_scipy(f(*cp))
+        if not np.all(np.isfinite(A.data)):
+            continue
+        bad = _singular_rows(A)
+        if bad is None:
+            r.info["index1_check"] = "passed"
+            r.info["index1_check_at"] = "a consistent point"
+            return None
+    return bad
+
+
 def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     """Raise :class:`ReductionError` unless ``d alg / d z`` of ``r`` is nonsingular.
 
-    Evaluated (sparse) at ``points`` random points; one finite nonsingular evaluation suffices
-    (a matrix of analytic functions that is nonsingular at one point is nonsingular almost
-    everywhere). The message names the algebraic equations in the singular combination.
+    Evaluated (sparse) at ``points`` random points, and where it is nonsingular there, at up
+    to two consistent points (``alg = 0`` and the invariants hold, :mod:`daekit.points`): the
+    index is a property along solutions, and ``(2 + sin y) * c(y, z)`` as a constraint is
+    regular at random points but singular wherever ``c = 0``. Nonsingular at one consistent
+    point suffices. The message names the algebraic equations in the singular combination.
     """
     if r.nz == 0:
         return
@@ -611,7 +691,13 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         finite = True
         bad = _singular_rows(A)
         if bad is None:
-            r.info["index1_check"] = "passed"
+            break
+    if finite and bad is None:
+        # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
+        # still be singular (a constraint times a factor that vanishes there): check at
+        # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
+        bad = _singular_on_solutions(r, f, seed)
+        if bad is None:
             return
     if not finite:
         r.info["index1_check"] = "inconclusive (no finite Jacobian at random points)"
@@ -623,7 +709,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     raise ReductionError(
         f"model {model!r}: the reduced system is not index 1: the Jacobian of the differentiated "
         f"equations {shown} with respect to their highest derivatives (Pryce's system "
-        "Jacobian) is singular at every test point. Structural analysis (Sigma-method/"
+        "Jacobian) is singular at every test point (on the solutions). Structural analysis (Sigma-method/"
         "Pantelides) fails on this model: it underestimates the index because these equations "
         "are dependent in their leading derivatives. Rewrite the model (e.g. substitute one "
         "of these equations into the others to eliminate the shared derivative), or use "

@@ -39,6 +39,7 @@ from .numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
     rank_info,
+    single_thread,
     sparse_rank_deficiency,
     sparse_rcond,
 )
@@ -136,7 +137,9 @@ class EasyTest:
 
 
 def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTest:
-    """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``.
+    """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``, at a point
+    where ``F = 0`` (Gauss--Newton from random values, :mod:`daekit.points`; the random point
+    itself where none is found).
 
     The Jacobian is evaluated sparsely. Up to ``EASY_DENSE_LIMIT`` equations its rank comes
     from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the diagonal blocks
@@ -157,7 +160,12 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     """
     Model.require(model, "is_index1")
     model.validate()
-    return _at_finite_point(model, point, seed, lambda pt: _easy_test(model, pt), "is_index1")
+    with single_thread():
+        def work(pt: _Point) -> EasyTest:
+            consistent_point(pt, model.residual)  # on F = 0 (the easy test's manifold)
+            return _easy_test(model, pt)
+
+        return _at_finite_point(model, point, seed, work, "is_index1")
 
 
 def _easy_test(model: Model, pt: _Point) -> EasyTest:
@@ -326,7 +334,8 @@ def differential_index(
         return _numeric_part(model, eq_lab, unk_lab, np.unique(eq_lab), pt, max_index,
                              "differential_index")
 
-    return _at_finite_point(model, point, seed, work, "differential_index")
+    with single_thread():
+        return _at_finite_point(model, point, seed, work, "differential_index")
 
 
 def derivative_array_dof(model: Model, equations: list[str], seed: int = 0):
@@ -791,8 +800,9 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
                 pt.status, confirmed)
 
-    (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
-     confirmed) = _at_finite_point(model, point, seed, work, "analyze")
+    with single_thread():
+        (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
+         confirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     return Analysis(

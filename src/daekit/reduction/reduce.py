@@ -155,9 +155,10 @@ def reduce_index(
         for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
     if check:
-        check_index1(r, seed=seed)
-        if amendments:
-            check_amendments(model, r, seed=seed)
+        with numerics.single_thread():
+            check_index1(r, seed=seed)
+            if amendments:
+                check_amendments(model, r, seed=seed)
     return r
 
 

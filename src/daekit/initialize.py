@@ -302,11 +302,24 @@ def initialize(
     JG_pattern = _ccs(gfun.sparsity_out(1))
     # z from alg with x frozen when alg is index 1 (a few Newton steps, failures ignored)
     w0 = _newton_z(hfun, w0, nx, n_alg, J_pattern if use_sparse else None)
+    # units do not matter: Gauss-Newton runs on rows and unknowns scaled by the equilibration
+    # of the Jacobian at the start (daekit.numerics.equilibrate), h_s(ws) = dr h(dc ws)
+    dr_h, dc_w = _start_scaling(hfun, w0)
+    if not (np.all(dr_h == 1.0) and np.all(dc_w == 1.0)):
+        ws = ca.SX.sym("ws", n)
+        h_s = ca.DM(dr_h) * ca.substitute(h, w, ca.DM(dc_w) * ws)
+        G_s = ca.substitute(G, w, ca.DM(dc_w) * ws)
+        hfun = ca.Function("h", [ws], [h_s, ca.jacobian(h_s, ws)])
+        gfun = ca.Function("g", [ws], [G_s, ca.jacobian(G_s, ws)])
+        J_pattern = _ccs(hfun.sparsity_out(1))
+        JG_pattern = _ccs(gfun.sparsity_out(1))
+        w0 = w0 / dc_w
+    fix_val_s = fix_val * dr_h[n_alg + n_inv:]
 
     def hval(wv):
         hv, J = hfun(wv)
         hv = np.asarray(hv, dtype=float).ravel()
-        hv[n_alg + n_inv:] -= fix_val
+        hv[n_alg + n_inv:] -= fix_val_s
         if use_sparse:
             return hv, _to_csc(J, J_pattern)
         return hv, np.asarray(J.full() if hasattr(J, "full") else J, dtype=float)
@@ -314,7 +327,7 @@ def initialize(
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
 
-    scale = 1.0 + np.abs(np.concatenate([fix_val, gval, [0.0]])).max()
+    scale = 1.0 + np.abs(np.concatenate([fix_val_s, w0, [0.0]])).max()
 
     def gauss_newton(wv):
         """Damped Gauss-Newton from ``wv``: (point, residual, Jacobian, converged, iterations)."""
@@ -391,6 +404,7 @@ def initialize(
 
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
+    wv = wv * dc_w  # back to the model's units
     position = {ca.SX(r.x[i]).element_hash(): i for i in range(nx)}
     position.update({ca.SX(r.z[i]).element_hash(): nx + i for i in range(nz)})
     for _, e, v in fixed_items:
@@ -405,6 +419,21 @@ def initialize(
         t0, x0, z0, u0, pv, values, free, len(free), redundant, cons, it,
         list(r.x_names), list(r.z_names),
     )
+
+
+def _start_scaling(hfun, w0) -> tuple[np.ndarray, np.ndarray]:
+    """Row and unknown factors (powers of two) from the equilibrated Jacobian at ``w0``
+    (all ones when it is not finite)."""
+    from .numerics import equilibrate
+
+    _, J = hfun(w0)
+    J = ca.DM(J)
+    colind, row = J.sparsity().get_ccs()
+    A = sp.csc_matrix((np.asarray(J.nonzeros(), dtype=float), np.asarray(row), np.asarray(colind)),
+                      shape=J.shape)
+    if A.nnz and not np.all(np.isfinite(A.data)):
+        return np.ones(A.shape[0]), np.ones(A.shape[1])
+    return equilibrate(A)
 
 
 def _gn_step(hv, J, gfun, wv, gval) -> np.ndarray:

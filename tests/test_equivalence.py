@@ -221,7 +221,7 @@ def check(case: Case, simulate: bool = True) -> Outcome:
         return Outcome(ok_a, "wrong", detail + f"; initial values off by {max(errs):.1e}")
     if simulate:
         try:
-            traj = dk.simulate(r, np.linspace(T0, T1, 3), init, rtol=1e-10, atol=1e-10)
+            traj = dk.simulate(r, np.linspace(T0, T1, 3), init, rtol=1e-10, atol=1e-13)
         except dk.DaekitError as exc:
             return Outcome(ok_a, "wrong", detail + f"; simulate: {str(exc)[:200]}")
         errs = [abs(traj[nm][-1] - f(T1)) / (1e-3 + abs(f(T1))) for nm, f in case.exact.items()]

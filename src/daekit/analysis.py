@@ -503,8 +503,11 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
         tgt = np.array(target)
         r_all = r_rest = r_full = -1
+        at_random = pt.sparse(jac_sym) if k == 0 or pt.status is None else None
+        if at_random is None:
+            at_random = pt.random_copy().sparse(jac_sym)
         for q in _array_points(pt, arr):
-            full = q.sparse(jac_sym)
+            full = _vanishing_removed(q.sparse(jac_sym), at_random)
             _require_finite(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
                                                     r // len(rows)))
             full = full.toarray()
@@ -639,6 +642,29 @@ class Analysis:
         }
 
 
+#: An entry whose value at a consistent point is below this fraction of its value at a random
+#: point vanishes on the solutions (``cos(x) (x' - v)`` where ``x' = v``): it is set to zero.
+#: The ratio of one entry at two points does not depend on units.
+VANISH = 1e-9
+
+
+def _vanishing_removed(at_consistent: sp.spmatrix, at_random: sp.spmatrix) -> sp.csr_matrix:
+    """``at_consistent`` without the entries that vanish on the solutions (see ``VANISH``);
+    both matrices must have the same pattern (the same symbolic expression)."""
+    c = sp.csr_matrix(at_consistent, copy=True)
+    rnd = sp.csr_matrix(at_random)
+    if c.nnz == 0 or c.shape != rnd.shape:
+        return c
+    ref = np.asarray(abs(rnd)[c.nonzero()]).ravel()
+    vals = c[c.nonzero()].A1 if hasattr(c[c.nonzero()], "A1") else np.asarray(c[c.nonzero()]).ravel()
+    tiny = np.abs(vals) <= VANISH * ref
+    if np.any(tiny):
+        r_, c_ = c.nonzero()
+        c[r_[tiny], c_[tiny]] = 0.0
+        c.eliminate_zeros()
+    return c
+
+
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
     """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
@@ -762,12 +788,12 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _sparse_jacobian(model, jrows, jcols, jvals, pt)
+            jac_c = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt), jac)
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             if new:
                 pt2 = pt.sibling(1)
-                jac2 = (_sparse_jacobian(model, jrows, jcols, jvals, pt2)
+                jac2 = (_vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
                         if consistent_point(pt2, expansion).consistent else None)
                 for k in new:
                     br, bc = blocks_idx[k]

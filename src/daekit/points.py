@@ -150,6 +150,17 @@ class TestPoint:
                 other.values[h] = v
         return other
 
+    def random_copy(self) -> TestPoint:
+        """The point as first drawn (before any :func:`make_consistent`): same seed, same
+        draws, same user values."""
+        other = TestPoint(self.model, self.point, self.seed, self.attempt)
+        other.t = self.t
+        held = _fixed_kinds(self.model)
+        for h, v in self.values.items():
+            if h in held:
+                other.values[h] = v
+        return other
+
     def assign(self, syms, vals) -> None:
         for s, v in zip(syms, vals, strict=True):
             self.values[s.element_hash()] = float(v)
@@ -316,12 +327,19 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
     for it in range(max_iter + 1):
         if r.max() <= level(w):
-            if r.max() > 0 and n:  # one more full step: Newton's convergence is quadratic
+            # polish to rounding: full Newton steps while the residual drops tenfold (the
+            # Jacobians at the point must not carry residue of terms that vanish there)
+            for _ in range(4):
+                if not (r.max() > 0 and n):
+                    break
+                J = jac(w)
                 d = _min_norm_step(sp.diags(dr) @ J @ sp.diags(dc), dr * h)
-                if d is not None and np.all(np.isfinite(d)):
-                    hn = fun(w + dc * d)
-                    if finite(hn) and merit(hn).max() < r.max():
-                        w, r = w + dc * d, merit(hn)
+                if d is None or not np.all(np.isfinite(d)):
+                    break
+                hn = fun(w + dc * d)
+                if not (finite(hn) and merit(hn).max() < 0.1 * r.max()):
+                    break
+                w, h, r = w + dc * d, hn, merit(hn)
             return w, PointStatus(True, float(r.max()), it)
         if it == max_iter or n == 0:
             break

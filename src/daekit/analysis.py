@@ -791,16 +791,21 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
             jac_c = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt), jac)
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
-            if new:
-                pt2 = pt.sibling(1)
-                jac2 = (_vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
-                        if consistent_point(pt2, expansion).consistent else None)
+            for k in new:
+                br, bc = blocks_idx[k]
+                checks[k] = _rank_check(jac_c, br, bc)
+            # Gauss-Newton may land on a singular branch of the solutions (x2 = 0 of
+            # x2 (x1 + z) = 0): up to two more consistent points from other draws
+            for extra in (1, 2):
+                if not any(checks[k].rank < checks[k].size for k in new):
+                    break
+                pt2 = pt.sibling(extra)
+                if not consistent_point(pt2, expansion).consistent:
+                    continue
+                jac2 = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
                 for k in new:
                     br, bc = blocks_idx[k]
-                    ch = _rank_check(jac_c, br, bc)
-                    if jac2 is not None:
-                        ch = max(ch, _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
-                    checks[k] = ch
+                    checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
         rcond = min((ch.rcond for ch in checks), default=1.0)
         singular = [ch.rows for ch in checks if ch.rank < ch.size]
         numeric, part = None, None
@@ -923,6 +928,12 @@ def _describe_points(model: Model, status, names: list[str]) -> str:
         return ("at consistent points (the equations and their needed derivatives hold there "
                 f"to {max(status.residual, 1e-16):.0e}, found by Gauss-Newton)")
     worst = [names[i] for i in (status.worst or []) if i < len(names)][:4]
+    if status.given:
+        return ("at YOUR point, as given: it does not satisfy the equations and their needed "
+                f"derivatives (relative residual {status.residual:.1e}"
+                + (f" in {', '.join(worst)}" if worst else "") + ") and the values you gave "
+                "admit no consistent completion; the numeric results hold there, not "
+                "necessarily on the solutions")
     return ("at a RANDOM point: no consistent point was found (Gauss-Newton left a relative "
             f"residual of {status.residual:.1e}" + (f" in {', '.join(worst)}" if worst else "")
             + "); the numeric results may not hold on the solutions -- give a consistent "

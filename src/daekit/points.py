@@ -10,9 +10,11 @@ evaluated at **consistent points**: values that satisfy the (differentiated) equ
 parameters take their defaults, time and the inputs (and their derivatives) are held at their
 drawn or given values, and Gauss--Newton with minimum-norm steps
 (:func:`gauss_newton`, dense below ``DENSE_UNKNOWNS`` unknowns, sparse LU beyond) moves the
-unknowns onto ``G = 0``. A user's ``point=`` is the start; if it already satisfies the
-equations it is kept as it is. When no consistent point is found the caller falls back to
-the random point and says so (:attr:`PointStatus.consistent` is False).
+unknowns onto ``G = 0``. The values of a user's ``point=`` are held and the others solved
+for; where the given values admit no consistent completion the point is used as given (the
+user asked for it) and the status says it is not consistent. When no consistent point is
+found the caller falls back to the random point and says so (:attr:`PointStatus.consistent`
+is False).
 
 Example
 -------
@@ -142,7 +144,7 @@ class TestPoint:
     def sibling(self, k: int) -> TestPoint:
         """Another test point with the same time, inputs and user values, and new random
         values elsewhere (seeded by ``k``)."""
-        other = TestPoint(self.model, self.point, self.seed + 104729 * k, self.attempt)
+        other = TestPoint(self.model, self.point, self.seed + 104729 * k, self.attempt + k)
         other.t = self.t
         held = _fixed_kinds(self.model)
         for h, v in self.values.items():
@@ -226,14 +228,13 @@ def make_consistent(pt: TestPoint, equations: ca.SX, max_iter: int = 60,
     model = pt.model
     syms = _movable(model, ca.symvar(G))
     if pt.given and any(s.element_hash() in pt.given for s in syms):
-        # the user's values held first; only where they admit no consistent completion are
-        # they a mere start
+        # the user's values are held; where they admit no consistent completion the point is
+        # used as the user gave it (and the status says it is not consistent)
         held = [s for s in syms if s.element_hash() not in pt.given]
         st = _solve(pt, G, held, max_iter, tol)
-        if st.consistent:
-            st.given = True
-            pt.status = st
-            return st
+        st.given = True
+        pt.status = st
+        return st
     st = _solve(pt, G, syms, max_iter, tol)
     pt.status = st
     return st
@@ -274,7 +275,7 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3) -> PointS
     """
     st = make_consistent(pt, equations)
     k = 1
-    while not st.consistent and k < starts:
+    while not st.consistent and k < starts and not st.given:
         alt = pt.sibling(k)
         st2 = make_consistent(alt, equations)
         if st2.consistent:

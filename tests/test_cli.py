@@ -101,7 +101,7 @@ def test_tour_short_run(tmp_path, capsys):
     remedies; the figures are written."""
     from daekit.tour import run_tour
 
-    rows = run_tour(out=tmp_path, t_end=5.0, quiet=True, animations=False, ocp=False)
+    rows = run_tour(out=tmp_path, t_end=5.0, quiet=True, ocp=False)  # default: no GIFs
     out = capsys.readouterr().out
     assert "Differential index 3" in out and "Figures written to" in out
     by = {(r.system, r.remedy.split(" (")[0]): r for r in rows}
@@ -115,6 +115,7 @@ def test_tour_short_run(tmp_path, capsys):
     assert (tmp_path / "pendulum3d_drift.png").exists()
     assert (tmp_path / "delta_robot_drift.png").exists()
     assert (tmp_path / "pendulum3d_structure.png").exists()
+    assert not list(tmp_path.glob("*.gif"))
 
 
 def test_tour_ocp_section(tmp_path, capsys):

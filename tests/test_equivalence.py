@@ -251,6 +251,8 @@ def run(count: int, start: int = 0, simulate_every: int = 1, verbose: bool = Fal
             failures.append((k, case.transforms, out.detail))
             if verbose:
                 print(k, case.transforms, out.detail, flush=True)
+        if verbose and (k - start + 1) % 10 == 0:
+            print(f"after {k - start + 1} cases: {counts}", flush=True)
     return counts, failures, sizes, indices
 
 

@@ -47,7 +47,8 @@ def test_pendulum_consistent_and_fixed_exact():
     assert abs(p @ p - 1) < 1e-12 and abs(p @ v) < 1e-12
     # lambda from the index-1 equations: z = (v.v - g p3) (m = L = 1, u = 0)
     assert abs(init["z"] - (v @ v - 9.81 * p[2])) < 1e-10
-    assert init.dof == 4 and len(init.free) == 4
+    assert init.dof == 4 and len(init.dof_names) == 4 and init.fixed == ["p[0]"]
+    assert len(init.free) == 3 and "p[0]" not in init.free  # the free values: not the fixed
     assert init.residual < 1e-12
 
 
@@ -94,7 +95,6 @@ def test_inputs_enter_algebraic_values():
 
 
 def test_initialize_reduced_index3_model():
-    pytest.importorskip("daekit.reduction")
     from daekit.reduction import reduce_index
 
     r = reduce_index(dk.examples.pendulum_planar())
@@ -188,7 +188,8 @@ def test_chain_stretched_at_rest_both_paths_exact(chain60, monkeypatch):
     assert np.abs(np.r_[d.x0, d.z0] - np.r_[s.x0, s.z0]).max() < 1e-10
     assert sorted(s.redundant) == sorted([f"q[{2 * k}]" for k in range(N)]
                                          + [f"v[{2 * k}]" for k in range(N)])
-    assert s.redundant == d.redundant and len(s.free) == len(d.free) == 2 * N
+    assert s.redundant == d.redundant and len(s.dof_names) == len(d.dof_names) == 2 * N
+    assert s.free == d.free == []  # everything was fixed
 
 
 def test_chain_hanging_multipliers_exact(chain60, path):

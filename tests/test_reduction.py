@@ -12,6 +12,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+import daekit as dk
 import daekit.examples as ex
 from daekit.errors import ReductionError, StructuralError
 from daekit.model import Model
@@ -128,10 +129,10 @@ def test_pendulum3d_plain_pryce_scheme():
     _pendulum3d_invariant_check(r, with_der_p=True)
 
 
-def test_pendulum3d_minimal_index1_form():
-    """Default: der(p) = v is eliminated; the lecture's index-1 form (L3): states (p, v),
-    algebraic (v', z), invariants rod and d/dt rod only."""
-    r = reduce_index(ex.pendulum3d())
+def test_pendulum3d_states_eliminated_kkt_form():
+    """eliminate="states": der(p) = v is eliminated; the KKT index-1 form (L3): states
+    (p, v), algebraic (v', z), invariants rod and d/dt rod only."""
+    r = reduce_index(ex.pendulum3d(), eliminate="states")
     assert r.info["index1_check"] == "passed"
     assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
     assert r.z_names == ["der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
@@ -150,7 +151,7 @@ def test_pendulum3d_minimal_index1_form():
 def test_pendulum3d_alg_equals_lecture_kkt_form():
     """alg equals [m I, p; p^T, 0] [v'; z] - [u - m g e3; -v.v] (lecture L3) at random
     points (not only on solutions), for random parameters too."""
-    r = reduce_index(ex.pendulum3d())
+    r = reduce_index(ex.pendulum3d(), eliminate="states")
     f = ca.Function("g", [r.x, r.z, r.u, r.p], [r.alg])
     rng = np.random.default_rng(2)
     for _ in range(5):
@@ -173,7 +174,7 @@ def test_delta_robot_minimal_index1_form():
     3 velocities)."""
     m = ex.delta_robot()
     r0 = reduce_index(m, eliminate=False)
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert (r0.nx, r0.nz, len(r0.invariant_names)) == (18, 15, 12)
     assert (r.nx, r.nz) == (12, 9)
     assert r.x_names == (
@@ -222,7 +223,7 @@ def _pendulum_velocity_split(scale: float = 2.0) -> Model:
 def test_elimination_in_dependency_order_matches_exact_solution():
     """Eliminations that depend on each other (y' = x' + v2 with x' = v1) resolve to
     y' = v1 + v2, and the result integrates to the exact pendulum (section 2, case B)."""
-    r = reduce_index(_pendulum_velocity_split())
+    r = reduce_index(_pendulum_velocity_split(), eliminate="states")
     assert r.x_names == ["x", "y", "v1", "v2"]
     assert r.invariant_names == ["rod", "d/dt rod"]
     assert sorted(r.z_names) == ["T", "der(v1)", "der(v2)"]
@@ -243,7 +244,7 @@ def test_nonconstant_coefficient_is_not_eliminated():
     m.equation((1 + x**2) * m.der(x) - v, name="k")
     m.equation(m.der(v) - T, name="n")
     m.equation(x - ca.sin(m.t), name="track")
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert r.info["eliminated"] == []
     assert "der(x)" in r.x_names and r.invariant_names == ["k", "track", "d/dt track"]
 
@@ -483,7 +484,7 @@ def test_large_chain_is_fast():
 
     m = ex.planar_chain(200)
     t0 = time.perf_counter()
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert time.perf_counter() - t0 < 2.0
     # q' = v eliminated: states (q, v), algebraic (v', lambda), invariants: the N rods and
     # their derivatives
@@ -569,7 +570,7 @@ def _rc(C: float) -> Model:
 def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
     """C x' + x = 0 is an ODE for any C > 0 (x = x0 exp(-t/C)); a small C must not read as a
     singular system Jacobian (which would amend the model into x = 0)."""
-    r = reduce_index(_rc(1e-3))
+    r = reduce_index(_rc(1e-3), eliminate="states")
     assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
     assert (r.x_names, r.z_names) == (["x"], ["der(x)"])
     grid = [0.0, 1e-3, 5e-3]
@@ -577,8 +578,8 @@ def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
     for col, t in enumerate(grid[1:]):
         assert xf[0, col] == pytest.approx(2.0 * np.exp(-t / 1e-3), rel=1e-8)
         assert zf[0, col] == pytest.approx(-2.0 / 1e-3 * np.exp(-t / 1e-3), rel=1e-6)
-    for method in ("differentiate", "dummy_derivatives"):
-        r12 = reduce_index(_rc(1e-12), method=method)
+    for method, kw in (("differentiate", {"eliminate": "states"}), ("dummy_derivatives", {})):
+        r12 = reduce_index(_rc(1e-12), method=method, **kw)
         assert r12.info["amendments"] == [] and r12.info["index1_check"] == "passed"
         assert r12.z_names == ["der(x)"] and r12.x_names == ["x"]
         # alg is still C x' + x: d alg / d x' = C
@@ -594,7 +595,7 @@ def test_scaled_two_time_scale_model_is_not_amended():
     M, C = m.parameter("M", 1e3), m.parameter("C", 1e-8)
     m.equation(M * m.der(x) + x, name="mech")
     m.equation(C * m.der(y) + y - x, name="elec")
-    r = reduce_index(m)
+    r = reduce_index(m, eliminate="states")
     assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
     assert r.x_names == ["x", "y"] and r.z_names == ["der(x)", "der(y)"]
     x0 = 1.0
@@ -697,3 +698,127 @@ def test_bad_point_poles_and_sizes_raise_reduction_errors():
         selection_condition(rd, [1, 2], [3])
     with pytest.raises(ReductionError, match=r"z must be \d+ numbers"):
         selection_condition(rd, np.zeros(rd.nx), [3])
+
+
+# ------------------------------------------------------------------ minimal index-1 form
+def test_pendulum3d_reduces_to_the_lecture_hand_form():
+    """Default: der(p) = v and der(v) = (u - m g e3 - z p)/m are substituted: x = (p, v),
+    z = (z) only, alg = d2/dt2 rod = p.a + v.v with that a (lecture L3's hand-written form),
+    checked at random points and parameters (not only on solutions)."""
+    r = reduce_index(ex.pendulum3d())
+    assert r.info["index1_check"] == "passed"
+    assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
+    assert r.z_names == ["z"] and r.invariant_names == ["rod", "d/dt rod"]
+    assert r.info["alg_names"] == ["d2/dt2 rod"]
+    assert [e["variable"] for e in r.info["substituted"]] == [f"der(v)[{i}]" for i in range(3)]
+    assert [e["equation"] for e in r.info["substituted"]] == [f"newton[{i}]" for i in range(3)]
+    names = [f"der(v)[{i}]" for i in range(3)] + [f"der(p,2)[{i}]" for i in range(3)]
+    f = ca.Function("g", [r.x, r.z, r.u, r.p],
+                    [r.alg, r.ode, ca.vertcat(*[r.variables[n] for n in names])])
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        p, v, u, zval = (rng.standard_normal(3), rng.standard_normal(3),
+                         rng.standard_normal(3), rng.standard_normal())
+        par = rng.uniform(0.5, 2.0, r.n_p)
+        mass, g = par[r.p_names.index("m")], par[r.p_names.index("g")]
+        a = (u - mass * g * np.array([0.0, 0.0, 1.0]) - zval * p) / mass
+        alg, ode, acc = (np.asarray(o).ravel() for o in f(np.r_[p, v], zval, u, par))
+        assert abs(alg[0] - (p @ a + v @ v)) < 1e-12
+        assert np.max(np.abs(ode - np.r_[v, a])) < 1e-12
+        assert np.max(np.abs(acc - np.r_[a, a])) < 1e-12  # der(v) and der(p,2) by name
+    # the KKT form is still there on request
+    rk = reduce_index(ex.pendulum3d(), eliminate="states")
+    assert rk.z_names == ["der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
+    with pytest.raises(ReductionError, match="eliminate='minimal' is not an option"):
+        reduce_index(ex.pendulum3d(), eliminate="minimal")
+
+
+def test_minimal_form_integrates_to_the_exact_pendulum():
+    """Second-order planar pendulum and the split-velocity form: z = (T) only, and plain IDAS
+    on the result reproduces the exact solution (reference-problems section 2, case B)."""
+    r = reduce_index(ex.pendulum_planar())
+    assert r.z_names == ["T"] and r.x_names == ["x", "der(x)", "y", "der(y)"]
+    x0, z0 = _values(r, {"x": 1.0, "y": 0.0, "T": 0.0})
+    xf, _ = _integrate(r, x0, z0, [0.0, 1.0, 10.0])
+    for col, t in enumerate((1.0, 10.0)):
+        assert abs(xf[0, col] - CASE_B[t][0]) < 1e-8 and abs(xf[2, col] - CASE_B[t][1]) < 1e-8
+    rs = reduce_index(_pendulum_velocity_split())
+    assert rs.z_names == ["T"] and rs.x_names == ["x", "y", "v1", "v2"]
+    x0, z0 = _values(rs, {"x": 1.0, "y": 0.0})
+    xf, _ = _integrate(rs, x0, z0, [0.0, 1.0, 10.0])
+    for col, t in enumerate((1.0, 10.0)):
+        assert abs(xf[0, col] - CASE_B[t][0]) < 1e-8 and abs(xf[1, col] - CASE_B[t][1]) < 1e-8
+
+
+def test_minimal_form_chain_accelerations_exact():
+    """A 30-link chain turning rigidly (g = 0): z = (lam) only; the substituted accelerations
+    der(v), read by name, equal the exact centripetal ones at the exact state."""
+    from daekit.examples.exact import planar_chain_rotating
+
+    N = 30
+    r = reduce_index(ex.planar_chain(N, g=0.0))
+    assert (r.nx, r.nz) == (4 * N, N) and r.z_names == [f"lam[{k}]" for k in range(N)]
+    e = planar_chain_rotating(0.7, N, omega=1.3)
+    acc = ca.vertcat(*[r.variables[f"der(v)[{i}]"] for i in range(2 * N)])
+    f = ca.Function("a", [r.x, r.z, r.p], [acc, r.alg])
+    a, alg = (np.asarray(o).ravel() for o in f(np.r_[e["q"], e["v"]], e["lam"], r.p_values))
+    assert np.max(np.abs(a - e["der(v)"])) < 1e-12 * np.max(np.abs(e["lam"]))
+    assert np.max(np.abs(alg)) < 1e-11 * np.max(np.abs(e["lam"]))
+
+
+def test_state_dependent_mass_keeps_the_kkt_form():
+    """(2 + sin x) v' = -x: the coefficient depends on the state, so der(v) stays an algebraic
+    unknown; a parameter coefficient k v' = -x is substituted."""
+    m = Model("mass")
+    x, v = m.state("x"), m.state("v")
+    m.equation(m.der(x) - v, name="kin")
+    m.equation((2 + ca.sin(x)) * m.der(v) + x, name="newton")
+    r = reduce_index(m)
+    assert r.z_names == ["der(v)"]
+    assert [e["variable"] for e in r.info["substituted"]] == ["der(x)"]  # x' = v: explicit
+    m2 = Model("param")
+    x, v = m2.state("x"), m2.state("v")
+    k = m2.parameter("k", 4.0)
+    m2.equation(m2.der(x) - v, name="kin")
+    m2.equation(k * m2.der(v) + x, name="newton")
+    r2 = reduce_index(m2)
+    assert r2.nz == 0 and r2.x_names == ["x", "v"] and r2.info["index1_check"] == "passed"
+    # x'' = -x / k: x = cos(t / sqrt(k)) from x = 1, v = 0; also for another k
+    F = ca.integrator("F", "cvodes", {"x": r2.x, "p": r2.p, "ode": r2.ode}, 0.0, [3.0],
+                      {"abstol": 1e-12, "reltol": 1e-12})
+    for kv in (4.0, 0.25):
+        xf = np.asarray(F(x0=[1.0, 0.0], p=[kv])["xf"]).ravel()
+        assert abs(xf[0] - np.cos(3.0 / np.sqrt(kv))) < 1e-9
+
+
+def test_constant_coupled_mass_matrix_stays_algebraic_and_exact():
+    """[[2, 1], [1, 2]] v' = -x: each acceleration's definition needs the other (a cycle), so
+    both stay algebraic unknowns; the result is still exact. Modes: x1 + x2 with frequency
+    1/sqrt(3), x1 - x2 with frequency 1."""
+    m = Model("coupled_mass")
+    x, v = m.state("x", 2), m.state("v", 2)
+    m.equation(m.der(x) - v, name="kin")
+    a = m.der(v)
+    m.equation(ca.vertcat(2 * a[0] + a[1] + x[0], a[0] + 2 * a[1] + x[1]), name="newton")
+    r = reduce_index(m)
+    assert sorted(r.z_names) == ["der(v)[0]", "der(v)[1]"]
+    assert [e["variable"] for e in r.info["substituted"]] == ["der(x)[0]", "der(x)[1]"]
+    x0 = np.array([1.0, 0.0, 0.0, 0.0])  # x = (1, 0), v = 0
+    xf, _ = _integrate(r, x0, np.zeros(2), [0.0, 2.0])
+    s, d = 0.5 * np.cos(2.0 / np.sqrt(3.0)), 0.5 * np.cos(2.0)
+    assert abs(xf[0, 0] - (s + d)) < 1e-8 and abs(xf[1, 0] - (s - d)) < 1e-8
+
+
+def test_minimal_form_simulates_and_reads_der_v_by_name():
+    """simulate + traj["der(v)"] on the minimal form of the second-order planar pendulum
+    released at rest from horizontal, against the exact accelerations (elliptic functions)."""
+    from daekit.examples.exact import pendulum_planar
+
+    r = reduce_index(ex.pendulum_planar())
+    init = dk.initialize(r, fixed={"x": 1.0, "der(x)": 0.0}, guess={"y": 0.0})
+    ts = np.linspace(0.0, 2.0, 21)
+    traj = dk.simulate(r, ts, init, rtol=1e-10, atol=1e-10)
+    e = pendulum_planar(ts, np.pi / 2)
+    assert np.max(np.abs(traj["der(x,2)"] - e["der(x,2)"])) < 1e-6
+    assert np.max(np.abs(traj["der(y,2)"] - e["der(y,2)"])) < 1e-6
+    assert np.max(np.abs(traj["T"] - e["T"])) < 1e-6

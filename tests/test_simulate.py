@@ -10,11 +10,9 @@ import daekit as dk
 from daekit.errors import DaekitError, SimulationError
 from daekit.initialize import initialize
 from daekit.reduced import ReducedDAE
+from daekit.reduction import reduce_index
 from daekit.simulate import Trajectory, simulate
 from daekit.simulate.inputs import InputError
-
-reduction = pytest.importorskip("daekit.reduction")
-reduce_index = reduction.reduce_index
 
 # reference-problems.md section 2, case B (theta0 = pi/2, g = 9.81, L = 1)
 X10, Y10 = 0.27508746257611686005, -0.96141920509912506427

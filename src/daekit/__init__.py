@@ -11,6 +11,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 
 from . import mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
+from .ensemble import Ensemble, ensemble, ensemble_ocp, sample
 from .errors import (
     DaekitError,
     InitializationError,
@@ -34,7 +35,7 @@ from .reduction import (
     reselect,
     selection_condition,
 )
-from .simulate import InputError, Trajectory, simulate
+from .simulate import InputError, Trajectory, load_trajectory, simulate
 
 __version__ = "0.1.0"
 
@@ -65,6 +66,7 @@ __all__ = [
     "ggl",
     "initialize",
     "lagrangian",
+    "load_trajectory",
     "mechanics",
     "reduce_index",
     "reselect",
@@ -72,6 +74,10 @@ __all__ = [
     "simulate",
     "DaekitError",
     "EasyTest",
+    "Ensemble",
+    "ensemble",
+    "ensemble_ocp",
+    "sample",
     "InitializationError",
     "Model",
     "ModelError",

@@ -39,13 +39,14 @@ from .numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
     rank_info,
-    single_thread,
     sparse_rank_deficiency,
     sparse_rcond,
 )
 from .points import DRAWS, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
+from .threads import blas_threads, limit_blas_threads
+from .wording import count
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
            "is_index1", "derivative_array_dof"]
@@ -158,9 +159,9 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     >>> dk.is_index1(dk.examples.l3()).rank
     6
     """
-    Model.require(model, "is_index1")
+    model = Model.require(model, "is_index1")
     model.validate()
-    with single_thread():
+    with blas_threads():
         def work(pt: _Point) -> EasyTest:
             consistent_point(pt, model.residual)  # on F = 0 (the easy test's manifold)
             return _easy_test(model, pt)
@@ -325,7 +326,7 @@ def differential_index(
     >>> differential_index(dk.examples.gear_petzold()).index
     2
     """
-    Model.require(model, "differential_index")
+    model = Model.require(model, "differential_index")
     model.validate()
     inc = model.incidence()
     eq_lab, unk_lab = _components(inc)
@@ -334,7 +335,7 @@ def differential_index(
         return _numeric_part(model, eq_lab, unk_lab, np.unique(eq_lab), pt, max_index,
                              "differential_index")
 
-    with single_thread():
+    with blas_threads():
         return _at_finite_point(model, point, seed, work, "differential_index")
 
 
@@ -697,6 +698,7 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
 POINT_LIMIT = 2000
 
 
+@limit_blas_threads
 def analyze(model: Model, point: dict | None = None, seed: int = 0,
             consistent: bool | None = None) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
@@ -749,7 +751,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     >>> a.index, a.dof, a.equation_offsets["rod"]
     (3, 4, 2)
     """
-    Model.require(model, "analyze")
+    model = Model.require(model, "analyze")
     model.validate()
     inc = model.incidence()
     n = inc.n_unknowns
@@ -831,7 +833,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
                 pt.status, confirmed)
 
-    with single_thread():
+    with blas_threads():
         (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
          confirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
@@ -998,7 +1000,7 @@ def _explain(a: Analysis) -> str:
     n = len(a.equation_offsets)
     n_alg = sum(1 for v in a.highest_order.values() if v == 0)
     lines = [
-        f"Model {a.model_name!r}: {n} equations in {n} unknowns "
+        f"Model {a.model_name!r}: {count(n, 'equation')} in {count(n, 'unknown')} "
         f"({n - n_alg} appear differentiated, {n_alg} only algebraically)"
         + (f", {a.n_inputs} input(s)." if a.n_inputs else "."),
         "",
@@ -1063,7 +1065,7 @@ def _explain(a: Analysis) -> str:
             )
     lines.append("")
     lines.append(
-        f"Degrees of freedom: {a.dof} initial values can be chosen freely; the rest follow from "
+        f"Degrees of freedom: {count(a.dof, 'initial value')} can be chosen freely; the rest follow from "
         "the equations and their hidden consistency conditions."
     )
     if a.structurally_ok:

@@ -1,4 +1,4 @@
-"""Command line: ``daekit tour | analyze | reduce | simulate``.
+"""Command line: ``daekit tour | analyze | reduce | simulate | sweep``.
 
 ``FILE.py[:FUNCTION]`` names a Python file whose function (default ``model``) returns a
 :class:`daekit.Model` (or a :class:`daekit.mechanics.LagrangianSystem`, or for ``simulate`` a
@@ -46,12 +46,40 @@ def load_target(spec: str):
     sys.path.insert(0, str(path.parent.resolve()))
     try:
         mod_spec.loader.exec_module(module)
+    except SyntaxError as exc:
+        where = f"{path}, line {exc.lineno}" if exc.lineno else str(path)
+        text = f":\n    {exc.text.rstrip()}" if exc.text else ""
+        raise ModelError(f"{where}: syntax error: {exc.msg}{text}") from None
+    except DaekitError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - the user's code: say where, no traceback
+        raise ModelError(f"{path}{_user_line(exc, path)}: running the file raised "
+                         f"{type(exc).__name__}: {exc}") from None
     finally:
         sys.path.pop(0)
     if not hasattr(module, func):
         funcs = [n for n in dir(module) if callable(getattr(module, n)) and not n.startswith("_")]
         raise ModelError(f"{path} has no function {func!r} (it has: {', '.join(funcs) or 'none'})")
-    return getattr(module, func)()
+    try:
+        return getattr(module, func)()
+    except DaekitError as exc:
+        raise type(exc)(f"{path}{_user_line(exc, path)}: {func}() raised: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - the user's code: say where, no traceback
+        raise ModelError(f"{path}{_user_line(exc, path)}: {func}() raised "
+                         f"{type(exc).__name__}: {exc}") from None
+
+
+def _user_line(exc: BaseException, path: Path) -> str:
+    """``", line N"`` of the innermost frame of ``exc`` in the user's file ``path``."""
+    import traceback
+
+    try:
+        target = path.resolve()
+        frames = [f for f in traceback.extract_tb(exc.__traceback__)
+                  if Path(f.filename).resolve() == target]
+    except OSError:  # pragma: no cover
+        return ""
+    return f", line {frames[-1].lineno}" if frames else ""
 
 
 def _as_model(obj):
@@ -66,18 +94,14 @@ def _as_model(obj):
 
 
 def _as_reduced(obj, method: str, stabilization: str | None):
-    from .mechanics import LagrangianSystem
+    """The file's object as a ReducedDAE, by the entry points' one rule
+    (:func:`daekit.reduction.as_reduced`)."""
     from .reduced import ReducedDAE
-    from .reduction import reduce_index
+    from .reduction import as_reduced
 
-    if isinstance(obj, ReducedDAE):
-        return obj
-    if isinstance(obj, LagrangianSystem) and method != "rattle" and stabilization != "dummy_derivatives":
-        return obj.index1()
-    if isinstance(obj, LagrangianSystem):
-        return obj.index1() if method == "rattle" else reduce_index(obj.model(), method="dummy_derivatives")
-    red_method = "dummy_derivatives" if stabilization == "dummy_derivatives" else "differentiate"
-    return reduce_index(_as_model(obj), method=red_method)
+    if not isinstance(obj, ReducedDAE) and not hasattr(obj, "index1"):
+        obj = _as_model(obj)  # names what the file returned when it is not a model
+    return as_reduced(obj, "simulate", stabilization=stabilization, method=method)
 
 
 def _cmd_analyze(args) -> int:
@@ -86,7 +110,7 @@ def _cmd_analyze(args) -> int:
     m = _as_model(load_target(args.target))
     a = analyze(m)
     if args.json:
-        print(json.dumps(a.to_dict(), indent=2))
+        print(json.dumps(_analysis_json(a, m), indent=2))
     else:
         print(a.explain())
     if args.plot:
@@ -96,6 +120,47 @@ def _cmd_analyze(args) -> int:
         a.plot_structure().savefig(args.plot, dpi=110)
         print(f"wrote {args.plot}", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+def _analysis_json(a, m) -> dict:
+    """``analyze --json``: the analysis, the consistency conditions (from the reduction, when it
+    succeeds), the input derivatives and the plain-language explanation."""
+    d = a.to_dict()
+    d["input_derivatives"] = dict(a.input_derivatives)
+    d["definitions"] = list(a.definitions)
+    try:
+        from .reduction import reduce_index
+
+        d["consistency_conditions"] = list(reduce_index(m).invariant_names)
+    except DaekitError as exc:
+        d["consistency_conditions"] = None
+        d["consistency_conditions_error"] = str(exc)
+    d["explanation"] = a.explain()
+    return d
+
+
+def _reduced_json(r) -> dict:
+    """``reduce --json``: the index-1 form by names, its invariants and state selection."""
+    def text(e):
+        return [str(e[i]) for i in range(e.numel())]
+
+    d = {
+        "model": getattr(r.model, "name", None), "method": r.method,
+        "stabilization": r.stabilization,
+        "states": list(r.x_names), "algebraic": list(r.z_names), "inputs": list(r.u_names),
+        "parameters": dict(zip(r.p_names, np.asarray(r.p_values, float).ravel().tolist(),
+                               strict=False)),
+        "input_derivatives": list(r.input_derivatives),
+        "invariant_names": list(r.invariant_names),
+        "ode": dict(zip(r.x_names, text(r.ode), strict=False)),
+        "alg": dict(zip(r.info.get("alg_names") or [f"alg[{i}]" for i in range(r.alg.numel())],
+                        text(r.alg), strict=False)),
+        "invariants": dict(zip(r.invariant_names, text(r.invariants), strict=False)),
+        "eliminated": [{k: str(v) for k, v in e.items()} for e in r.info.get("eliminated") or []],
+    }
+    if r.state_selection:
+        d["state_selection"] = json.loads(json.dumps(r.state_selection, default=str))
+    return d
 
 
 def _parse_inputs(specs: list[str] | None, r) -> dict | None:
@@ -125,7 +190,10 @@ def _cmd_reduce(args) -> int:
 
     obj = load_target(args.target)
     r = _as_reduced(obj, "idas", "dummy_derivatives" if args.method == "dummy_derivatives" else None)
-    print(format_reduced(r))
+    if args.json:
+        print(json.dumps(_reduced_json(r), indent=2))
+    else:
+        print(format_reduced(r))
     return 0
 
 
@@ -139,6 +207,7 @@ def _cmd_simulate(args) -> int:
     guess = json.loads(args.guess) if args.guess else None
     inputs = _parse_inputs(args.input, r)
     init = initialize(r, fixed=fixed, guess=guess, inputs=inputs)
+    print(_describe_initial(r, init, fixed, guess))
     t = np.linspace(0.0, args.t_end, args.points)
     traj = simulate(r, t, init, inputs=inputs, stabilization=args.stabilization, rtol=args.rtol,
                     atol=args.atol, method=args.method, progress=not args.quiet)
@@ -146,31 +215,178 @@ def _cmd_simulate(args) -> int:
     maxinv = traj.max_invariant()
     print(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
           f"{traj.stats.get('steps', '?')} steps, {traj.stats.get('wall_time', float('nan')):.3f} s")
+    pnames = set(r.p_names)
     for k, v in final.items():
-        print(f"  {k:>16} = {v: .10g}")
+        if k not in pnames:
+            print(f"  {k:>16} = {v: .10g}")
+    if r.p_names:
+        pv = _trajectory_json_parameters(r, traj)
+        print("parameters: " + ", ".join(f"{k} = {v:g}" for k, v in pv.items()))
     if maxinv:
         print("max |invariant|: " + ", ".join(f"{k}: {v:.2e}" for k, v in maxinv.items()))
     if args.json:
-        data = {"t": traj.t.tolist(), "values": {k: traj[k].tolist() for k in traj.names},
-                "invariant_names": traj.invariant_names, "invariants": traj.invariants.tolist(),
-                "stats": {k: v for k, v in traj.stats.items() if isinstance(v, (int, float, str))}}
-        Path(args.json).write_text(json.dumps(data))
+        Path(args.json).write_text(json.dumps(_trajectory_json(r, traj)))
         print(f"wrote {args.json}")
     if args.plot:
         import matplotlib
 
         matplotlib.use("Agg")
-        fig = traj.plot()
+        from .plot import plot_overview
+
+        fig = plot_overview(traj, exclude=r.p_names)
         fig.savefig(args.plot, dpi=110)
         print(f"wrote {args.plot}")
     return 0
 
 
+def _describe_initial(r, init, fixed, guess) -> str:
+    """The initial values used, each marked fixed (given), free (could have been given) or
+    determined (by the constraints and the others)."""
+    fixed_names = set(getattr(init, "fixed", None) or [])
+    if not fixed_names and fixed:
+        from .model import expand_name
+
+        for k in fixed:
+            try:
+                fixed_names.update(expand_name(k, r.variables))
+            except DaekitError:
+                pass
+    free = set(init.free)
+    how = "from your --fixed/--guess" if (fixed or guess) else \
+        "no --fixed/--guess given: started from zeros and projected onto the constraints"
+    lines = [f"initial values at t = {init.t0:g} ({how}; consistent to {init.residual:.1e}):"]
+    for nm, v in zip(r.x_names, init.x0, strict=False):
+        mark = "fixed" if nm in fixed_names else ("free" if nm in free else "determined")
+        lines.append(f"  {nm:>16} = {v: .10g}   {mark}")
+    others = sorted(fixed_names - set(r.x_names))
+    for nm in others:
+        lines.append(f"  {nm:>16} = {init.values.get(nm, float('nan')): .10g}   fixed")
+    if free - fixed_names:
+        lines.append("  free: could be set with --fixed instead ("
+                     + ", ".join(n for n in r.x_names if n in free and n not in fixed_names) + ")")
+    return "\n".join(lines)
+
+
+def _trajectory_json_parameters(r, traj) -> dict[str, float]:
+    """The parameter values used (a constant column of the trajectory), else the defaults."""
+    pvals = dict(zip(r.p_names, np.asarray(r.p_values, float).ravel().tolist(), strict=False))
+    for k in r.p_names:
+        if k in traj.values and traj.values[k].size:
+            pvals[k] = float(traj.values[k][0])
+    return pvals
+
+
+def _trajectory_json(r, traj) -> dict:
+    """``simulate --json``: time series of the variables, the parameters once."""
+    pnames = set(r.p_names)
+    pvals = _trajectory_json_parameters(r, traj)
+    return {
+        "t": traj.t.tolist(),
+        "values": {k: traj[k].tolist() for k in traj.names if k not in pnames},
+        "parameters": pvals,
+        "invariant_names": traj.invariant_names, "invariants": traj.invariants.tolist(),
+        "stats": {k: v for k, v in traj.stats.items() if isinstance(v, (int, float, str))},
+    }
+
+
+def _parse_param(spec: str) -> tuple[str, list[float]]:
+    """``"L=0.5:2.0:16"`` (16 values from 0.5 to 2.0) or ``"L=0.5,1,2"`` -> (name, values)."""
+    name, eq, text = spec.partition("=")
+    name = name.strip()
+    if not eq or not name or not text.strip():
+        raise ModelError(f"--param {spec!r}: write NAME=LO:HI:N (N values from LO to HI) or "
+                         "NAME=V1,V2,...")
+    try:
+        if ":" in text:
+            parts = text.split(":")
+            if len(parts) != 3:
+                raise ValueError
+            lo, hi, n = float(parts[0]), float(parts[1]), int(parts[2])
+            if n < 1:
+                raise ValueError
+            return name, np.linspace(lo, hi, n).tolist()
+        return name, [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ModelError(f"--param {spec!r}: write NAME=LO:HI:N (N an integer >= 1) or "
+                         "NAME=V1,V2,... with numbers") from None
+
+
+def _parse_draw(spec: str) -> tuple[str, tuple]:
+    """``"L=uniform:0.8:1.2"`` -> ``("L", ("uniform", 0.8, 1.2))`` (see :func:`daekit.sample`)."""
+    name, eq, text = spec.partition("=")
+    parts = text.split(":")
+    try:
+        if not eq or not name.strip() or len(parts) < 2:
+            raise ValueError
+        return name.strip(), (parts[0].strip(), *[float(v) for v in parts[1:]])
+    except ValueError:
+        raise ModelError(f"--draw {spec!r}: write NAME=DISTRIBUTION:A:B, e.g. L=uniform:0.8:1.2 "
+                         "or m=normal:1.0:0.05") from None
+
+
+def _cmd_sweep(args) -> int:
+    import itertools
+
+    from .ensemble import ensemble
+
+    obj = load_target(args.target)
+    r = _as_reduced(obj, "idas", args.stabilization)
+    if not args.param and not args.draw:
+        raise ModelError("sweep: give --param NAME=LO:HI:N (a grid) or --draw NAME=DIST:A:B "
+                         "--n N (Monte Carlo)")
+    grids = [_parse_param(p) for p in args.param or []]
+    spec = dict(_parse_draw(d) for d in args.draw or [])
+    names = [g[0] for g in grids] + list(spec)
+    if len(set(names)) != len(names):
+        raise ModelError(f"--param/--draw: a name is given twice ({', '.join(names)})")
+    samples = [dict(zip(names, combo, strict=False))
+               for combo in itertools.product(*[g[1] for g in grids])]
+    if spec:
+        from .sampling import sample
+
+        draws = sample(spec, args.n, seed=args.seed)
+        samples = [{**g, **d} for g in samples for d in draws]
+    fixed = json.loads(args.fixed) if args.fixed else None
+    guess = json.loads(args.guess) if args.guess else None
+    inputs = _parse_inputs(args.input, r)
+    t = np.linspace(0.0, args.t_end, args.points)
+    client = None
+    executor = "serial" if args.serial else None
+    if args.scheduler:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ModelError('--scheduler needs Dask: pip install "daekit[dask]"') from None
+        try:
+            client = Client(args.scheduler, timeout=args.timeout)
+        except OSError as exc:
+            raise ModelError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        executor = client
+    try:
+        ens = ensemble(r, t, samples, executor=executor, fixed=fixed, guess=guess, inputs=inputs,
+                       progress=not args.quiet, keep="summary",
+                       stabilization=args.stabilization, rtol=args.rtol, atol=args.atol)
+    finally:
+        if client is not None:
+            client.close()
+    out = args.out
+    ens.save_summary(out)
+    ok = len(ens) - len(ens.failures)
+    print(f"swept {len(ens)} samples of {', '.join(names)} on {ens.stats['executor']} in "
+          f"{ens.stats['wall_time']:.2f} s: {ok} succeeded, {len(ens.failures)} failed")
+    for msg in list(ens.failures.values())[:5]:
+        print(f"  failed: {msg[:300]}")
+    if len(ens.failures) > 5:
+        print(f"  ... ({len(ens.failures) - 5} more failures in {out})")
+    print(f"wrote {out}")
+    return 0 if ok else 1
+
+
 def _cmd_tour(args) -> int:
     from .tour import run_tour
 
-    run_tour(out=args.out, t_end=args.t_end, quiet=args.quiet, animations=not args.no_animations,
-             ocp=not args.no_ocp)
+    run_tour(out=args.out, t_end=args.t_end, quiet=args.quiet,
+             gifs=args.gifs and not args.no_animations, ocp=not args.no_ocp)
     return 0
 
 
@@ -183,7 +399,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", default="daekit-tour", help="folder for the figures (default: %(default)s)")
     t.add_argument("--t-end", type=float, default=100.0, help="simulated seconds (default: 100)")
     t.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    t.add_argument("--no-animations", action="store_true", help="skip the GIF animations")
+    t.add_argument("--gifs", action="store_true",
+                   help="also write the GIF animations (real time, 480 pixels; a few seconds more)")
+    t.add_argument("--no-animations", action="store_true",
+                   help="no GIF animations (the default; overrides --gifs)")
     t.add_argument("--no-ocp", action="store_true", help="skip the optimal control section")
     t.set_defaults(func=_cmd_tour)
 
@@ -196,6 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("reduce", help="print the index-1 form, invariants, state selection")
     r.add_argument("target")
     r.add_argument("--method", default="differentiate", choices=["differentiate", "dummy_derivatives"])
+    r.add_argument("--json", action="store_true",
+                   help="print the index-1 form, invariants and state selection as JSON")
     r.set_defaults(func=_cmd_reduce)
 
     s = sub.add_parser("simulate", help="reduce, initialize and simulate")
@@ -216,6 +437,36 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--plot", metavar="OUT.png", help="save a plot of the trajectory")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_simulate)
+
+    w = sub.add_parser("sweep", help="a parameter sweep: one simulation per sample, a summary "
+                       "table (CSV or Parquet); local processes or a Dask scheduler")
+    w.add_argument("target")
+    w.add_argument("--param", action="append", metavar="NAME=LO:HI:N",
+                   help="values of a parameter (or of a fixed initial value): LO:HI:N or "
+                        "V1,V2,...; several --param give the full grid")
+    w.add_argument("--draw", action="append", metavar="NAME=DIST:A:B",
+                   help="Monte Carlo: draw NAME from uniform:LO:HI, normal:MEAN:STD, "
+                        "lognormal:MU:SIGMA, loguniform:LO:HI, triangular:LO:MODE:HI (--n draws, "
+                        "--seed; with --param, at every grid point)")
+    w.add_argument("--n", type=int, default=100, help="number of draws (default: %(default)s)")
+    w.add_argument("--seed", type=int, default=0, help="seed of the draws (default: 0)")
+    w.add_argument("--t-end", type=float, required=True)
+    w.add_argument("--points", type=int, default=501, help="output points (default: %(default)s)")
+    w.add_argument("--stabilization", default=None,
+                   choices=["baumgarte", "projection", "dummy_derivatives"])
+    w.add_argument("--fixed", help="JSON of fixed initial values shared by all samples")
+    w.add_argument("--guess", help="JSON of initial guesses")
+    w.add_argument("--input", action="append", metavar="NAME=EXPR")
+    w.add_argument("--rtol", type=float, default=1e-8)
+    w.add_argument("--atol", type=float, default=1e-8)
+    w.add_argument("--out", default="sweep.csv",
+                   help="summary file, .csv or .parquet (default: %(default)s)")
+    w.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a Dask scheduler, e.g. tcp://10.0.0.5:8786 (default: local processes)")
+    w.add_argument("--timeout", type=float, default=10.0, help="seconds to reach the scheduler")
+    w.add_argument("--serial", action="store_true", help="run in this process")
+    w.add_argument("--quiet", action="store_true")
+    w.set_defaults(func=_cmd_sweep)
     return p
 
 

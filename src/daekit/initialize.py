@@ -38,6 +38,7 @@ choice of the same size on both (they may pick different, equally valid, sets).
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -50,6 +51,8 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from .errors import DaekitError, InitializationError
+from .threads import limit_blas_threads
+from .wording import count
 
 __all__ = ["InitialValues", "initialize"]
 
@@ -72,17 +75,26 @@ class InitialValues:
         Inputs at ``t0`` and the parameter values used.
     values : dict of str to float
         Every element of the original model (``"p[0]"``, ``"der(p)[0]"``, ``"z"``, inputs).
-    free : set of str
-        A set of state element names that could have been fixed freely (one choice of dynamic
-        degrees of freedom; found by a column-pivoted QR of the consistency Jacobian, or for
-        big systems by a matched sparse basis of it). States you fixed are preferred.
+    free : list of str
+        The state values that are still free: they could be fixed in addition to ``fixed``
+        (in the order of ``x_names``). Together with the fixed values they form
+        ``dof_names``.
+    fixed : list of str
+        The element names you fixed, in your order (the implied ones also in ``redundant``).
+    dof_names : list of str
+        One choice of dynamic degrees of freedom, ``dof`` state names in state order: a set of
+        values that can be fixed freely (found by a column-pivoted QR of the consistency
+        Jacobian, or for big systems by a matched sparse basis of it). States you fixed are
+        preferred.
     dof : int
-        Number of dynamic degrees of freedom (``len(free)``).
+        Number of dynamic degrees of freedom (``len(dof_names)``).
     redundant : list of str
         Fixed values that were implied by the others (consistent, hence accepted).
     residual : float
         Max |alg|, |invariant| at the solution.
     iterations : int
+    notes : list of str
+        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced).
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
     """
@@ -93,13 +105,16 @@ class InitialValues:
     u0: np.ndarray
     p: np.ndarray
     values: dict[str, float]
-    free: set[str] = field(default_factory=set)
+    free: list[str] = field(default_factory=list)
     dof: int = 0
     redundant: list[str] = field(default_factory=list)
     residual: float = 0.0
     iterations: int = 0
     x_names: list[str] = field(default_factory=list)
     z_names: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    fixed: list[str] = field(default_factory=list)
+    dof_names: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
         from .simulate.trajectory import expand_name
@@ -121,6 +136,16 @@ def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
     """(element name, expression of (t,x,z,u,p), value) for each element meant by ``key``."""
     from .simulate.trajectory import NameNotFoundError, expand_name
 
+    pnames = list(getattr(r, "p_names", []) or [])
+    if pnames and isinstance(key, str):
+        try:
+            expand_name(key, dict.fromkeys(pnames), "the parameters")
+        except NameNotFoundError:
+            pass
+        else:
+            raise InitializationError(
+                f"{what}: {key} is a parameter, not a variable: use params={{{key!r}: {val!r}}}"
+            )
     try:
         elems = expand_name(key, r.variables, "the model")
     except NameNotFoundError as exc:
@@ -147,6 +172,7 @@ def _fmt(names_vals: list[tuple[str, float]]) -> str:
     return ", ".join(f"{n} = {v:g}" for n, v in names_vals)
 
 
+@limit_blas_threads
 def initialize(
     r,
     t0: float = 0.0,
@@ -162,6 +188,8 @@ def initialize(
     Parameters
     ----------
     r : ReducedDAE
+        A Model or LagrangianSystem is reduced automatically (see
+        :func:`daekit.reduction.as_reduced`; ``init.notes`` says how).
     t0 : float
         Initial time (invariants and inputs may depend on time).
     guess : dict, optional
@@ -197,9 +225,21 @@ def initialize(
     >>> init = initialize(r, guess={"p": [0.9, 0.1]}, fixed={"v[0]": 0.0})
     >>> bool(abs(np.linalg.norm(init["p"]) - 1) < 1e-12), init.dof
     (True, 2)
+    >>> init.fixed, len(init.free)        # one more value (e.g. p[1]) could be fixed
+    (['v[0]'], 1)
     """
+    from .reduced import ReducedDAE
     from .simulate.inputs import InputSignal, resolve_params
 
+    notes: list[str] = []
+    if not isinstance(r, ReducedDAE):  # a Model or LagrangianSystem: reduced (and noted)
+        from .reduction.accept import as_reduced
+
+        r = as_reduced(r, "initialize", notes=notes)
+        out = initialize(r, t0, guess=guess, fixed=fixed, inputs=inputs, params=params,
+                         tol=tol, max_iter=max_iter)
+        out.notes = notes + out.notes
+        return out
     base = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
     if base is not None:
         # an index-2 form (GGL): alg = 0 leaves its multipliers underdetermined; initialize
@@ -214,7 +254,12 @@ def initialize(
             values={**b.values, **dict.fromkeys(extra, 0.0)},
         )
 
-    t0 = float(t0)
+    try:
+        t0 = float(t0)
+    except (TypeError, ValueError):
+        raise InitializationError(f"initialize: t0 must be a number, got {t0!r}") from None
+    if not np.isfinite(t0):
+        raise InitializationError(f"initialize: t0 must be a finite number, got {t0!r}")
     nx, nz = r.nx, r.nz
     n = nx + nz
     pv = resolve_params(r, params)
@@ -300,26 +345,18 @@ def initialize(
     use_sparse = n >= _SPARSE_MIN_UNKNOWNS
     J_pattern = _ccs(hfun.sparsity_out(1))
     JG_pattern = _ccs(gfun.sparsity_out(1))
-    # z from alg with x frozen when alg is index 1 (a few Newton steps, failures ignored)
-    w0 = _newton_z(hfun, w0, nx, n_alg, J_pattern if use_sparse else None)
-    # units do not matter: Gauss-Newton runs on rows and unknowns scaled by the equilibration
-    # of the Jacobian at the start (daekit.numerics.equilibrate), h_s(ws) = dr h(dc ws)
-    dr_h, dc_w = _start_scaling(hfun, w0)
-    if not (np.all(dr_h == 1.0) and np.all(dc_w == 1.0)):
-        ws = ca.SX.sym("ws", n)
-        h_s = ca.DM(dr_h) * ca.substitute(h, w, ca.DM(dc_w) * ws)
-        G_s = ca.substitute(G, w, ca.DM(dc_w) * ws)
-        hfun = ca.Function("h", [ws], [h_s, ca.jacobian(h_s, ws)])
-        gfun = ca.Function("g", [ws], [G_s, ca.jacobian(G_s, ws)])
-        J_pattern = _ccs(hfun.sparsity_out(1))
-        JG_pattern = _ccs(gfun.sparsity_out(1))
-        w0 = w0 / dc_w
-    fix_val_s = fix_val * dr_h[n_alg + n_inv:]
+    # z is a function of x wherever d alg / d z is nonsingular (index 1): after every step it
+    # is re-solved from alg at the new x, so that the iteration is Gauss-Newton on x alone
+    # (quadratic from a rough guess; a joint step on (x, z) is spoiled by the bilinear terms
+    # such as lam * q of mechanical systems)
+    settle = _z_solver(alg, w, nx, use_sparse) if (nz and n_alg == nz) else (lambda wv: wv)
+    w0 = settle(w0)
+    metric_nx = nx if (nz and n_alg == nz) else n
 
     def hval(wv):
         hv, J = hfun(wv)
         hv = np.asarray(hv, dtype=float).ravel()
-        hv[n_alg + n_inv:] -= fix_val_s
+        hv[n_alg + n_inv:] -= fix_val
         if use_sparse:
             return hv, _to_csc(J, J_pattern)
         return hv, np.asarray(J.full() if hasattr(J, "full") else J, dtype=float)
@@ -327,12 +364,43 @@ def initialize(
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
 
-    scale = 1.0 + np.abs(np.concatenate([fix_val_s, w0, [0.0]])).max()
+    scale = 1.0 + np.abs(np.concatenate([fix_val, gval, [0.0]])).max()
+
+    def objective(wv) -> float:
+        if not gval.size:
+            return 0.0
+        return 0.5 * float(np.sum((np.asarray(gfun(wv)[0], dtype=float).ravel() - gval) ** 2))
+
+    lagr = {}
+
+    def curvature(wv, y):
+        """Curvature of the Lagrangian ``f + y^T h`` beyond Gauss--Newton's ``J_G^T J_G``:
+        ``sum y_i h_i'' + sum (G_j - guess_j) G_j''`` (sparse; the CasADi function is made on
+        first use). Without it Gauss--Newton is slow or diverges where the constraints are
+        curved and the guesses off them (a 200-link chain from 1 cm off: the rods'
+        multipliers are large), with it the iteration is Newton's on the KKT conditions."""
+        if "f" not in lagr:
+            ys = ca.SX.sym("y", h.numel())
+            rg = ca.SX.sym("rg", G.numel())
+            Hs = ca.hessian(ca.dot(ys, h) + ca.dot(rg, G), w)[0]
+            lagr["f"] = ca.Function("lagr_hess", [w, ys, rg], [Hs])
+            lagr["ccs"] = _ccs(lagr["f"].sparsity_out(0))
+        rgv = np.asarray(gfun(wv)[0], dtype=float).ravel() - gval
+        Hv = _to_csc(lagr["f"](wv, y, rgv), lagr["ccs"])
+        return Hv if use_sparse else Hv.toarray()
 
     def gauss_newton(wv):
-        """Damped Gauss-Newton from ``wv``: (point, residual, Jacobian, converged, iterations)."""
+        """Damped (Gauss-)Newton from ``wv``: (point, residual, Jacobian, converged, iterations).
+
+        With guesses, from the second iteration on the step includes the curvature of the
+        Lagrangian at the last multipliers (Newton-Lagrange, SQP); a step that the line search
+        cuts below 1/8 is replaced by the Gauss-Newton step. A trial point is accepted when it
+        reduces ||h|| sufficiently or the exact penalty ``f + rho ||h||_1``
+        (``rho = 2 max |y| + 1``)."""
         it = 0
         hv, J = hval(wv)
+        fv = objective(wv)
+        y = None
         history: list[float] = []
         for it in range(1, max_iter + 1):  # noqa: B007
             if not np.all(np.isfinite(hv)) or not jac_finite(J):
@@ -341,25 +409,36 @@ def initialize(
                     f"initialize: the equations {bad or '(Jacobian)'} are not finite at the "
                     "current point; give guesses closer to a consistent state"
                 )
-            if use_sparse:
-                d = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval)
-            else:
-                d = _gn_step(hv, J, gfun, wv, gval)
+            use_c = gval.size and y is not None and np.any(y)
+            candidates = ["newton", "gn"] if use_c else ["gn"]
             normh = np.linalg.norm(hv)
-            alpha = 1.0
-            for _ in range(30):
-                wn = wv + alpha * d
-                hn, Jn = hval(wn)
-                if np.all(np.isfinite(hn)) and (
-                    np.linalg.norm(hn) <= max(normh * (1 - 1e-4 * alpha), tol * scale)
-                    or alpha < 1e-3
-                ):
+            for kind in candidates:
+                C = curvature(wv, y) if kind == "newton" else None
+                if use_sparse:
+                    d, yn = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval, metric_nx, C)
+                else:
+                    d, yn = _gn_step(hv, J, gfun, wv, gval, metric_nx, n_alg, C)
+                rho = 2.0 * float(np.max(np.abs(yn), initial=0.0)) + 1.0
+                phi = fv + rho * float(np.sum(np.abs(hv)))
+                alpha = 1.0
+                for _ in range(30):
+                    wn = settle(wv + alpha * d)
+                    hn, Jn = hval(wn)
+                    if np.all(np.isfinite(hn)):
+                        nh = np.linalg.norm(hn)
+                        if nh <= max(normh * (1 - 1e-4 * alpha), tol * scale) or alpha < 1e-3:
+                            break
+                        if gval.size and objective(wn) + rho * float(np.sum(np.abs(hn))) < phi:
+                            break
+                    alpha *= 0.5
+                if alpha >= 0.125 or kind == "gn":
                     break
-                alpha *= 0.5
+            y = yn
             step = np.max(np.abs(wn - wv)) if n else 0.0
             if not np.all(np.isfinite(hn)) or np.linalg.norm(hn) > 1e3 * max(normh, 1.0):
                 break  # diverging: analyse the best point reached
             wv, hv, J = wn, hn, Jn
+            fv = objective(wv)
             if np.max(np.abs(hv), initial=0.0) <= tol * scale and step <= 1e-9 * (
                 1 + np.max(np.abs(wv), initial=0.0)
             ):
@@ -381,7 +460,7 @@ def initialize(
         rng = np.random.default_rng(0)
         w1 = w0.copy()
         w1[~given] += rng.uniform(0.1, 0.3, int((~given).sum()))
-        w1 = _newton_z(hfun, w1, nx, n_alg, J_pattern if use_sparse else None)
+        w1 = settle(w1)
         second = gauss_newton(w1)
         if second[3]:
             wv, hv, J, converged, it = second
@@ -404,7 +483,6 @@ def initialize(
 
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
-    wv = wv * dc_w  # back to the model's units
     position = {ca.SX(r.x[i]).element_hash(): i for i in range(nx)}
     position.update({ca.SX(r.z[i]).element_hash(): nx + i for i in range(nz)})
     for _, e, v in fixed_items:
@@ -415,81 +493,136 @@ def initialize(
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = _evaluate_variables(r, t0, x0, z0, u0, pv)
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
+    # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
+    # order; the free values are those of it that were not fixed (also under another name)
+    dof_names = [nm for nm in r.x_names if nm in free]
+    fixed_x = {position[ca.SX(e).element_hash()] for _, e, _ in fixed_items
+               if ca.SX(e).is_symbolic() and ca.SX(e).element_hash() in position}
+    free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
-        t0, x0, z0, u0, pv, values, free, len(free), redundant, cons, it,
-        list(r.x_names), list(r.z_names),
+        t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
+        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
     )
 
 
-def _start_scaling(hfun, w0) -> tuple[np.ndarray, np.ndarray]:
-    """Row and unknown factors (powers of two) from the equilibrated Jacobian at ``w0``
-    (all ones when it is not finite)."""
-    from .numerics import equilibrate
-
-    _, J = hfun(w0)
-    J = ca.DM(J)
-    colind, row = J.sparsity().get_ccs()
-    A = sp.csc_matrix((np.asarray(J.nonzeros(), dtype=float), np.asarray(row), np.asarray(colind)),
-                      shape=J.shape)
-    if A.nnz and not np.all(np.isfinite(A.data)):
-        return np.ones(A.shape[0]), np.ones(A.shape[1])
-    return equilibrate(A)
-
-
-def _gn_step(hv, J, gfun, wv, gval) -> np.ndarray:
-    n = wv.size
-    if J.shape[0]:
-        U, S, Vt = np.linalg.svd(J, full_matrices=True)
+def _qp_min_norm(A, h, H, g) -> np.ndarray:
+    """``argmin d^T H d / 2 + g^T d`` subject to ``A d = -h`` (least squares where
+    inconsistent), the minimum-norm choice among equals: the minimum-norm particular step
+    (SVD of ``A``) plus a least-squares step in its null space. ``H = None``: ``d`` is the
+    minimum-norm solution of the constraints alone."""
+    n = A.shape[1]
+    if A.shape[0]:
+        U, S, Vt = np.linalg.svd(A, full_matrices=True)
         k = int(np.sum(S > 1e-11 * max(S[0], 1e-300))) if S.size else 0
-        dp = -(Vt[:k].T @ ((U[:, :k].T @ hv) / S[:k]))
+        dp = -(Vt[:k].T @ ((U[:, :k].T @ h) / S[:k]))
         N = Vt[k:].T
     else:
         dp = np.zeros(n)
         N = np.eye(n)
-    if gval.size and N.shape[1]:
-        Gv, JG = gfun(wv)
-        Gv = np.asarray(Gv, dtype=float).ravel()
-        JG = np.asarray(JG.full(), dtype=float)
-        A = JG @ N
-        b = -(Gv + JG @ dp - gval)
-        y = np.linalg.lstsq(A, b, rcond=1e-12)[0]
+    if H is not None and N.shape[1]:
+        y = np.linalg.lstsq(N.T @ H @ N, -(N.T @ (H @ dp + g)), rcond=1e-12)[0]
         return dp + N @ y
     return dp
 
 
-def _newton_z(hfun, w0, nx, n_alg, pattern=None, iters: int = 20) -> np.ndarray:
-    """Solve alg for z at fixed x (best effort; the joint iteration corrects anything left).
+def _gn_step(hv, J, gfun, wv, gval, nx=None, n_alg=0, C=None):
+    """The dense (Gauss--)Newton step and the constraints' multipliers ``(d, y)``.
 
-    With ``pattern`` (the CCS pattern of ``hfun``'s Jacobian) the Jacobian stays sparse and a
-    square ``d alg / d z`` is factorized by SuperLU instead of a dense least-squares solve."""
-    n = w0.size
-    if n_alg == 0 or n == nx:
-        return w0
-    w = w0.copy()
-    for _ in range(iters):
-        hv, J = hfun(w)
-        g = np.asarray(hv, dtype=float).ravel()[:n_alg]
-        if pattern is None:
-            Jz = np.asarray(J.full(), dtype=float)[:n_alg, nx:]
-            ok = np.all(np.isfinite(Jz))
-        else:
-            Jz = _to_csc(J, pattern)[:n_alg, nx:].tocsc()
-            ok = np.all(np.isfinite(Jz.data))
-        if not (np.all(np.isfinite(g)) and ok):
-            return w0
-        if np.max(np.abs(g), initial=0.0) < 1e-14:
-            break
-        if pattern is None:
-            dz = np.linalg.lstsq(Jz, -g, rcond=1e-12)[0]
-        elif Jz.shape[0] == Jz.shape[1]:
+    ``min (G + J_G d - guess)^2 / 2 + d^T C d / 2`` s.t. ``h + J d = 0``, ties broken by the
+    smallest ``||d_x||``; ``C`` is the curvature of the Lagrangian (``sum y_i h_i''`` and the
+    guesses' own curvature; ``None``: Gauss--Newton). With ``nx < n`` the first
+    ``n_alg = n - nx`` rows are ``alg``, solvable for ``d_z`` (``A_z`` nonsingular):
+    ``d_z = -A_z^{-1} (h_a + A_x d_x)`` is eliminated and the step is found in ``x`` alone
+    (z is a function of x); where ``A_z`` is singular, on ``w = (x, z)`` jointly. The
+    multipliers solve ``J^T y = -(grad f + H d)`` in the least-squares sense."""
+    n = wv.size
+    nx = n if nx is None else nx
+    H = gradf = None
+    if gval.size:
+        Gv, JGd = gfun(wv)
+        JG = np.asarray(JGd.full(), dtype=float)
+        gradf = JG.T @ (np.asarray(Gv, dtype=float).ravel() - gval)
+        H = JG.T @ JG
+        if C is not None:
+            H = H + (C.toarray() if sp.issparse(C) else C)
+    d = None
+    if nx < n and n_alg == n - nx:
+        Az, Ax = J[:n_alg, nx:], J[:n_alg, :nx]
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
+                lu = scipy.linalg.lu_factor(Az, check_finite=True)
+            rc = 1.0 / max(np.linalg.cond(Az, 1), 1e-300)
+        except (ValueError, np.linalg.LinAlgError, scipy.linalg.LinAlgWarning):
+            rc = 0.0
+        if rc > 1e-13:
+            T = -scipy.linalg.lu_solve(lu, Ax)
+            t0 = -scipy.linalg.lu_solve(lu, hv[:n_alg])
+            R = J[n_alg:]
+            Rx = R[:, :nx] + R[:, nx:] @ T
+            hr = hv[n_alg:] + R[:, nx:] @ t0
+            if H is not None:
+                P = np.vstack([np.eye(nx), T])
+                p0 = np.concatenate([np.zeros(nx), t0])
+                Hx, gx = P.T @ H @ P, P.T @ (H @ p0 + gradf)
+            else:
+                Hx = gx = None
+            dx = _qp_min_norm(Rx, hr, Hx, gx)
+            d = np.concatenate([dx, T @ dx + t0])
+    if d is None:
+        d = _qp_min_norm(J, hv, H, gradf)
+    if H is None or not J.shape[0]:
+        return d, np.zeros(J.shape[0])
+    y = np.linalg.lstsq(J.T, -(gradf + H @ d), rcond=1e-12)[0]
+    return d, y
+
+
+def _z_solver(alg: ca.SX, w: ca.SX, nx: int, sparse: bool, iters: int = 12):
+    """``settle(w)``: ``w`` with its ``z`` part re-solved from ``alg(x, z) = 0`` at fixed ``x``
+    (Newton with SuperLU or dense LU on ``d alg / d z``; one step when ``alg`` is affine in
+    ``z``, as for mechanical systems). Where ``d alg / d z`` is singular or Newton does not
+    converge, ``w`` is returned unchanged (the joint step stands)."""
+    zs = w[nx:]
+    Jz = ca.jacobian(alg, zs)
+    affine = not ca.depends_on(Jz, zs)
+    afun = ca.Function("alg_z", [w], [alg, Jz])
+    ccs = _ccs(afun.sparsity_out(1))
+    count = 1 if affine else iters
+
+    def settle(wv: np.ndarray) -> np.ndarray:
+        w1 = np.array(wv, dtype=float)
+        g0 = None
+        for _ in range(count):
+            g, A = afun(w1)
+            g = np.asarray(g, dtype=float).ravel()
+            A = _to_csc(A, ccs)
+            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data))):
+                return wv
+            ng = float(np.max(np.abs(g), initial=0.0))
+            if g0 is None:
+                g0 = ng
+            elif ng > 2 * g0:
+                return wv  # Newton diverging: keep the joint step
+            if ng == 0.0:
+                break
             try:
-                dz = spla.splu(Jz).solve(-g)
-            except RuntimeError:  # structurally or exactly singular: leave it to Gauss-Newton
-                return w0
-        else:
-            dz = spla.lsmr(Jz, -g, atol=1e-14, btol=1e-14)[0]
-        w[nx:] += dz
-    return w if np.all(np.isfinite(w)) else w0
+                if sparse:
+                    dz = spla.splu(A.tocsc()).solve(-g)
+                else:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
+                        dz = scipy.linalg.solve(A.toarray(), -g, check_finite=False)
+            except (RuntimeError, np.linalg.LinAlgError, ValueError,
+                    scipy.linalg.LinAlgWarning):
+                return wv
+            if not np.all(np.isfinite(dz)):
+                return wv
+            w1[nx:] += dz
+            if np.max(np.abs(dz)) <= 1e-13 * (1.0 + np.max(np.abs(w1[nx:]))):
+                break
+        return w1
+
+    return settle
 
 
 def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
@@ -505,52 +638,68 @@ def _to_csc(M: ca.DM, ccs) -> sp.csc_matrix:
     return sp.csc_matrix((data, row, colind), shape=shape)
 
 
-def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, refine: int = 4) -> np.ndarray:
-    """The Gauss--Newton step of :func:`_gn_step`, sparse.
+def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, nx=None, C=None, refine: int = 10):
+    """The step of :func:`_gn_step`, sparse: ``(d, y)``.
 
-    ``min ||G + J_G d - guess||^2 (+ ||d||^2 without guesses)  s.t.  h + J d = 0`` through
-    its KKT system ``[[W, J^T], [J, 0]] [d; y] = [-J_G^T (G - guess); -h]``, ``W = J_G^T J_G``
-    (``I`` without guesses: the minimum-norm step). The matrix is factorized by SuperLU after
-    a small proximal regularization ``[[W + eps I, J^T], [J, -mu I]]`` (quasi-definite, hence
-    nonsingular even for redundant rows or unguessed directions); a few steps of iterative
-    refinement against the unregularized system remove the regularization's bias. ``d`` stays
-    orthogonal to the directions that neither the constraints nor the guesses see, as the
-    dense SVD step's does."""
+    ``min (G + J_G d - guess)^2 / 2 + d^T C d / 2 + eps ||d_x||^2 / 2  s.t.  h + J d = 0``
+    through its KKT system ``[[W, J^T], [J, 0]] [d; y] = [-J_G^T (G - guess); -h]``,
+    ``W = J_G^T J_G + C + eps D_x`` (``D_x`` the identity on the first ``nx`` unknowns, zero on
+    ``z``; without guesses ``W = D_x``: the step of least ``||d_x||``; ``z`` is not weighted,
+    it follows from the ``alg`` rows). The proximal term ``eps ||d_x||^2`` does not move the
+    solution (the iteration's fixed points, ``d = 0``, are the same), and the constraints are
+    met exactly: the KKT matrix is factorized by SuperLU as it is. Only when that fails
+    (redundant constraint rows make it singular) is it regularized,
+    ``[[W + eps I, J^T], [J, -mu I]]``, and refined against the unregularized system."""
     n, m = wv.size, J.shape[0]
+    nx = n if nx is None else nx
+    dx = np.zeros(n)
+    dx[:nx] = 1.0
     if gval.size:
         Gv, JGd = gfun(wv)
         JG = _to_csc(JGd, JG_ccs)
         W = (JG.T @ JG).tocsc()
+        if C is not None:
+            W = (W + C).tocsc()
         b1 = -(JG.T @ (np.asarray(Gv, dtype=float).ravel() - gval))
         sW = max(1.0, float(abs(W).max())) if W.nnz else 1.0
         eps = 1e-6 * sW
     else:
-        W = sp.identity(n, format="csc")
+        W = sp.csc_matrix((n, n))
         b1 = np.zeros(n)
-        sW, eps = 1.0, 0.0
+        sW, eps = 1.0, 1.0
     if m == 0:
-        Wr = (W + eps * sp.identity(n)).tocsc()
-        return spla.splu(Wr).solve(b1) if n else np.zeros(0)
+        d = spla.splu((W + eps * sp.identity(n)).tocsc()).solve(b1) if n else np.zeros(0)
+        return d, np.zeros(0)
+    Wx = (W + eps * sp.diags(dx)).tocsc()
+    Jc = J.tocsc()
+    K = sp.bmat([[Wx, Jc.T], [Jc, sp.csc_matrix((m, m))]], format="csc")
+    b = np.concatenate([b1, -hv])
+    nb = max(np.linalg.norm(b), 1e-300)
+    try:
+        lu = spla.splu(K)  # COLAMD + partial pivoting: little fill on KKT matrices
+        sol = lu.solve(b)
+        if np.all(np.isfinite(sol)):
+            sol = sol + lu.solve(b - K @ sol)
+            if np.all(np.isfinite(sol)) and np.linalg.norm(b - K @ sol) <= 1e-10 * nb:
+                return sol[:n], sol[n:]
+    except RuntimeError:  # exactly singular: redundant rows
+        pass
     sJ = max(1.0, float(abs(J).max())) if J.nnz else 1.0
     mu = 1e-8 * sJ**2 / sW
-    Jc = J.tocsc()
-    K_true = sp.bmat([[W, Jc.T], [Jc, sp.csc_matrix((m, m))]], format="csc")
     K_reg = sp.bmat(
         [[W + eps * sp.identity(n), Jc.T], [Jc, -mu * sp.identity(m)]], format="csc"
     )
-    b = np.concatenate([b1, -hv])
     try:
-        lu = spla.splu(K_reg)  # COLAMD + partial pivoting: little fill on KKT matrices
+        lu = spla.splu(K_reg)
     except RuntimeError:  # pragma: no cover - the regularized matrix is nonsingular
-        return spla.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0]
+        return spla.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0], np.zeros(m)
     sol = lu.solve(b)
-    nb = np.linalg.norm(b)
     for _ in range(refine):
-        res = b - K_true @ sol
+        res = b - K @ sol
         if np.linalg.norm(res) <= 1e-15 * nb:
             break
         sol = sol + lu.solve(res)
-    return sol[:n]
+    return sol[:n], sol[n:]
 
 
 def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> None:
@@ -573,7 +722,7 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
         raise InitializationError(
             f"initialize: the fixed values {_fmt(fx)} contradict "
             + (f"the consistency conditions {conds}" if conds else "each other")
-            + f" (max residual {res:.3g} after {it} iterations). Fix fewer values - fix only "
+            + f" (max residual {res:.3g} after {count(it, 'iteration')}). Fix fewer values - fix only "
             "dynamic degrees of freedom - or make them consistent, and give the rest as guesses."
         )
     what = cond_rows + alg_rows
@@ -583,14 +732,14 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
     )
     raise InitializationError(
         f"initialize: no consistent values found: {what} keep a residual of {res:.3g} after "
-        f"{it} iterations ({hint})."
+        f"{count(it, 'iteration')} ({hint})."
     )
 
 
 def _dependent_fixed(J, n_cons, fixed_names) -> list[str]:
     """Fixed values whose rows of ``J`` lie in the span of the consistency rows and of the
     (independent) fixed rows before them, decided scale-invariantly
-    (:func:`daekit.numerics.constrained_directions`): each fixed row, in the equilibrated
+    (:func:`daekit.numerics.redundant_rows`): each fixed row, in the equilibrated
     coordinates of the consistency rows and normalized, is projected on the directions the
     consistency rows and the accepted fixed rows leave free; it is redundant when nothing of
     it is left (below ``1e-8``). Units of equations and variables do not matter."""

@@ -45,6 +45,7 @@ import scipy.sparse.linalg as spla
 from .errors import ModelError
 from .model import Model, element_name
 from .reduced import ReducedDAE
+from .wording import count
 
 __all__ = ["LagrangianSystem", "lagrangian"]
 
@@ -257,8 +258,8 @@ class LagrangianSystem:
             dq = _to_sx(velocities, f"{where}: velocities")
         if dq.numel() != n:
             raise ModelError(
-                f"{where}: {dq.numel()} velocities for {n} coordinates; give one velocity symbol "
-                "per coordinate"
+                f"{where}: {count(dq.numel(), 'velocity')} for {count(n, 'coordinate')}; give one "
+                "velocity symbol per coordinate"
             )
         _symbols(dq, f"{where}: velocities")
         qnames = _element_names(self.coordinate_groups)
@@ -322,7 +323,7 @@ class LagrangianSystem:
         cnames = [g if s == 1 else f"{g}[{i}]" for g, s in self.constraint_groups for i in range(s)]
         if self.m > n:
             raise ModelError(
-                f"{where}: {self.m} constraints for {n} coordinates; at most n independent "
+                f"{where}: {count(self.m, 'constraint')} for {count(n, 'coordinate')}; at most n independent "
                 "holonomic constraints are possible, remove redundant ones"
             )
         Q = _to_sx(forces, f"{where}: forces") if forces is not None else ca.SX.zeros(n, 1)
@@ -662,15 +663,15 @@ class LagrangianSystem:
         pv = self.p_values if params is None else np.asarray(params, dtype=float).ravel()
         if pv.size != self.p_values.size:
             raise ModelError(
-                f"mechanical system {self.name!r}: {self.p_values.size} parameter values "
+                f"mechanical system {self.name!r}: {count(self.p_values.size, 'parameter value')} "
                 f"needed, got {pv.size}"
             )
         return self._check_at(q, pv, where="at the given configuration")
 
     def __repr__(self) -> str:
         return (
-            f"LagrangianSystem({self.name!r}: {self.n} coordinates, {self.m} constraints, "
-            f"{self.n_inputs} inputs)"
+            f"LagrangianSystem({self.name!r}: {count(self.n, 'coordinate')}, "
+            f"{count(self.m, 'constraint')}, {count(self.n_inputs, 'input')})"
         )
 
 

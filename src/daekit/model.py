@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError, StructuralError
+from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "parse_name", "element_name", "expand_name",
            "NameNotFoundError"]
@@ -432,30 +433,62 @@ class Model:
         >>> print(m.symbols_at([0, 1, 2, 0], [1, 1, 0, 0]))
         [der(p)[0], der(p)[1], z, p[0]]
         """
-        js = [int(j) for j in js]
+        js = np.asarray(js, dtype=np.int64).ravel()
         if isinstance(orders, (int, np.integer)):
-            orders = [int(orders)] * len(js)
-        orders = [int(o) for o in orders]
-        if len(orders) != len(js):
+            orders = np.full(js.size, int(orders), dtype=np.int64)
+        orders = np.asarray(orders, dtype=np.int64).ravel()
+        if orders.size != js.size:
             raise ModelError(
                 f"model {self.name!r}: symbols_at needs one order per unknown "
-                f"({len(js)} unknowns, {len(orders)} orders)"
+                f"({count(int(js.size), 'unknown')}, {count(int(orders.size), 'order')})"
             )
-        if not js:
+        if not js.size:
             return ca.SX(0, 1)
-        unknowns = self.unknowns
-        parts = []
-        run_var, run_order, run_idx = None, None, []
-        for j, o in zip(js, orders, strict=True):
-            var, i = unknowns[j]
-            if var is run_var and o == run_order:
-                run_idx.append(i)
-                continue
-            if run_idx:
-                parts.append(run_var.der(run_order)[run_idx])
-            run_var, run_order, run_idx = var, o, [i]
-        parts.append(run_var.der(run_order)[run_idx])
-        return ca.vertcat(*parts)
+        var_of, elem_of = self._unknown_arrays()
+        variables = self.unknown_variables
+        parts, base, pos = [], 0, np.empty(js.size, dtype=np.int64)
+        for o in np.unique(orders):
+            sel = np.nonzero(orders == o)[0]
+            for vi in np.unique(var_of[js[sel]]):
+                variables[vi].der(int(o))  # create the derivative symbols asked for
+            stack, start = self._stack(int(o))
+            pos[sel] = base + start[var_of[js[sel]]] + elem_of[js[sel]]
+            parts.append(stack)
+            base += int(stack.numel())
+        big = parts[0] if len(parts) == 1 else ca.vertcat(*parts)
+        return big[pos.tolist()]
+
+    def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""
+        if "unknown_arrays" not in self._cache:
+            sizes = np.array([v.size for v in self.unknown_variables], dtype=np.int64)
+            var_of = np.repeat(np.arange(sizes.size), sizes)
+            starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]) if sizes.size else sizes
+            elem_of = np.arange(int(sizes.sum())) - np.repeat(starts, sizes)
+            self._cache["unknown_arrays"] = (var_of, elem_of)
+        return self._cache["unknown_arrays"]
+
+    def _stack(self, order: int) -> tuple[ca.SX, np.ndarray]:
+        """All existing order-``order`` symbols of the unknowns stacked in one SX column, and
+        the start of each unknown variable in it (``-1`` for variables without that order):
+        one indexing of this column gives many symbols (cached while no new derivative symbol
+        appears)."""
+        variables = self.unknown_variables
+        have = tuple(order == 0 or order in v.ders for v in variables)
+        cache = self._cache.setdefault("stacks", {})
+        hit = cache.get(order)
+        if hit is not None and hit[0] == have:
+            return hit[1], hit[2]
+        start = np.full(len(variables), -1, dtype=np.int64)
+        pieces, off = [], 0
+        for k, (v, h) in enumerate(zip(variables, have, strict=True)):
+            if h:
+                start[k] = off
+                pieces.append(v.der(order))
+                off += v.size
+        stack = ca.vertcat(*pieces) if pieces else ca.SX(0, 1)
+        cache[order] = (have, stack, start)
+        return stack, start
 
     def lookup(self, sym: ca.SX) -> tuple[Variable, int, int] | None:
         """(variable, element, order) of a scalar symbol of this model, or None."""
@@ -500,16 +533,16 @@ class Model:
             return self._cache["inc"]
         F = self.residual
         unknowns = self.unknowns
-        col_of: dict[int, int] = {}
-        for j, (var, i) in enumerate(unknowns):
-            col_of[id(var), i] = j
+        var_of, _ = self._unknown_arrays()
         rows_all, cols_all, vals_all = [], [], []
         max_ord = max((self.max_order(v) for v in self.unknown_variables), default=0)
         for order in range(max_ord + 1):
-            cols_k = [j for j, (var, i) in enumerate(unknowns) if order == 0 or order in var.ders]
-            if not cols_k:
+            has = np.array([order == 0 or order in v.ders for v in self.unknown_variables],
+                           dtype=bool)
+            cols_k = np.nonzero(has[var_of])[0] if var_of.size else np.zeros(0, np.int64)
+            if not cols_k.size:
                 continue
-            X = ca.vertcat(*[unknowns[j][0].der(order)[unknowns[j][1]] for j in cols_k])
+            X = self.symbols_at(cols_k, order)
             r, c = ca.jacobian_sparsity(F, X).get_triplet()
             rows_all.append(np.asarray(r, dtype=np.int64))
             cols_all.append(np.asarray(cols_k, dtype=np.int64)[np.asarray(c, dtype=np.int64)])
@@ -534,13 +567,17 @@ class Model:
 
     @staticmethod
     def require(obj, where: str) -> Model:
-        """``obj`` if it is a Model, else a :class:`ModelError` saying what ``where`` needs."""
-        if not isinstance(obj, Model):
-            raise ModelError(
-                f"{where} needs a daekit.Model, got {type(obj).__name__}"
-                + (" (call .model() on a LagrangianSystem)" if hasattr(obj, "index1") else "")
-            )
-        return obj
+        """``obj`` if it is a Model, its ``.model()`` if it is a
+        :class:`~daekit.mechanics.LagrangianSystem` (the one rule of every entry point), else a
+        :class:`ModelError` saying what ``where`` needs."""
+        if isinstance(obj, Model):
+            return obj
+        if hasattr(obj, "index1") and callable(getattr(obj, "model", None)):
+            return obj.model()
+        raise ModelError(
+            f"{where} needs a daekit.Model, got {type(obj).__name__} (a "
+            "daekit.mechanics.LagrangianSystem is accepted too)"
+        )
 
     def validate(self) -> None:
         """Check the model; raise :class:`ModelError` or :class:`StructuralError` naming the fault.
@@ -618,8 +655,8 @@ class Model:
 
 
 def _count(n: int, noun: str) -> str:
-    """``"1 equation"``, ``"3 equations"``."""
-    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+    """``"1 equation"``, ``"3 equations"`` (:func:`daekit.wording.count`)."""
+    return count(n, noun)
 
 
 def _short(names: list[str], limit: int = 12) -> str:

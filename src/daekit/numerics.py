@@ -45,8 +45,7 @@ import scipy.sparse.linalg as spla
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "redundant_rows",
-           "single_thread"]
+           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "redundant_rows"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -59,32 +58,6 @@ RUIZ_ITERATIONS = 30
 NOISE = 1e-13
 #: Entries below this fraction of their row's largest (unscaled) count as zero for the scaling.
 ROW_NOISE = 1e-20
-
-
-_CONTROLLER = None
-
-
-def single_thread():
-    """Context manager: BLAS on one thread (``threadpoolctl`` where installed, else nothing).
-
-    The matrices of the structural tests are small (tens to hundreds of rows); a multithreaded
-    BLAS on them is slower, and on a loaded machine up to 25 times slower (an SVD of a
-    100-by-250 matrix: 10 ms on one thread, 250 ms on two busy cores).
-
-    >>> with single_thread():
-    ...     pass
-    """
-    global _CONTROLLER
-    try:
-        if _CONTROLLER is None:
-            from threadpoolctl import ThreadpoolController
-
-            _CONTROLLER = ThreadpoolController()
-        return _CONTROLLER.limit(limits=1, user_api="blas")
-    except Exception:  # noqa: BLE001 - threadpoolctl absent or unusable: leave BLAS alone
-        import contextlib
-
-        return contextlib.nullcontext()
 
 
 def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:

@@ -39,6 +39,7 @@ import scipy.sparse.linalg as spla
 
 from .errors import ModelError
 from .numerics import SparseFunction, equilibrate, to_scipy
+from .wording import count
 
 __all__ = ["TestPoint", "PointStatus", "check_point", "make_consistent", "consistent_point",
            "gauss_newton", "reduced_consistent_point", "DRAWS"]
@@ -83,8 +84,8 @@ def check_point(model, point) -> dict[str, np.ndarray]:
             arr = np.full(size, arr[0])
         if arr.size != size:
             raise ModelError(
-                f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
-                f"{size} element(s); give {size} values (or one for all)"
+                f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
+                f"has {count(size, 'element')}; give {count(size, 'value')} (or one for all)"
             )
         if not np.all(np.isfinite(arr)):
             raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")

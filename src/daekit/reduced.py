@@ -7,10 +7,14 @@ initial time, and a map from the original model's names to expressions in these 
 
 from __future__ import annotations
 
+import copy
+import pickle
 from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+
+from .wording import count
 
 __all__ = ["ReducedDAE"]
 
@@ -101,8 +105,48 @@ class ReducedDAE:
             "alg": self.alg,
         }
 
+    # ------------------------------------------------------------------ pickling
+    # CasADi SX pickle only inside a casadi pickle context (one serializer for all of them, so
+    # that shared symbols stay shared). A ReducedDAE opens its own when none is open: it can be
+    # pickled as is, e.g. to ship it to worker processes once (daekit.ensemble).
+    # copy.copy / copy.deepcopy as before (shared symbols), not through the serialization
+    def __copy__(self) -> ReducedDAE:
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        return new
+
+    def __deepcopy__(self, memo: dict) -> ReducedDAE:
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        new.__dict__.update(copy.deepcopy(self.__dict__, memo))
+        return new
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        if _casadi_context_open("pickle"):
+            return state
+        with ca.global_pickle_context():
+            blob = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+        return {"casadi_blob": blob}
+
+    def __setstate__(self, state: dict) -> None:
+        if set(state) == {"casadi_blob"}:
+            with ca.global_unpickle_context():
+                state = pickle.loads(state["casadi_blob"])  # noqa: S301 - our own blob
+        self.__dict__.update(state)
+
     def __repr__(self) -> str:
         return (
-            f"ReducedDAE({self.method}: {self.nx} states, {self.nz} algebraic, {self.nu} inputs, "
-            f"{len(self.invariant_names)} invariants)"
+            f"ReducedDAE({self.method}: {count(self.nx, 'state')}, {self.nz} algebraic, "
+            f"{count(self.nu, 'input')}, {count(len(self.invariant_names), 'invariant')})"
         )
+
+
+def _casadi_context_open(kind: str) -> bool:
+    """Whether a ``casadi.global_pickle_context`` (``kind="pickle"``) or
+    ``global_unpickle_context`` is open in this thread."""
+    probe = getattr(ca.casadi, f"_current_{kind}_context", None)
+    try:
+        return probe is not None and probe() is not None
+    except Exception:  # noqa: BLE001 - another CasADi version: open our own
+        return False

@@ -9,7 +9,9 @@ control problem on an index-3 model (an overhead crane moved in minimum time). F
 a folder that the tour names at the end.
 
 Run it as ``daekit tour`` (or ``python -m daekit tour``); ``--quiet`` turns the progress off,
-``--t-end`` shortens the runs, ``--out`` chooses the folder.
+``--t-end`` shortens the runs, ``--out`` chooses the folder, ``--gifs`` adds the animations
+(real time, 480 pixels: the swinging pendulum, the delta robot, and the drift of an
+unstabilized pendulum next to a projected one at a loose tolerance).
 """
 
 from __future__ import annotations
@@ -148,7 +150,8 @@ def _remedies(system_name, model, lag, fixed, guess, t, energy, inputs, progress
 
 
 def _table(rows: list[RemedyResult]) -> str:
-    head = f"{'system':<12} {'remedy':<22} {'max |c|':>10} {'max |c`|':>10} {'energy err':>10} " \
+    dc = "max |c'|"
+    head = f"{'system':<12} {'remedy':<22} {'max |c|':>10} {dc:>10} {'energy err':>10} " \
            f"{'wall [s]':>9} {'steps':>8}"
     lines = [head, "-" * len(head)]
     for r in rows:
@@ -189,13 +192,20 @@ def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
 
 
 def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool = False,
-             animations: bool = True, ocp: bool = True) -> list[RemedyResult]:
+             animations: bool | None = None, ocp: bool = True, gifs: bool = False
+             ) -> list[RemedyResult]:
     """Run the tour; print the story and the table, write figures into ``out``.
 
-    Returns the table rows (with their trajectories).
+    ``gifs=True`` also writes the GIF animations (a few seconds more); ``animations`` is the
+    older name of the same switch (when given, it wins). ``ocp=False`` skips the optimal
+    control section. Returns the table rows (with their trajectories).
+
+    >>> import tempfile
+    >>> rows = run_tour(tempfile.mkdtemp(), t_end=0.5, quiet=True, ocp=False)  # doctest: +SKIP
     """
+    if animations is not None:
+        gifs = bool(animations)
     import daekit as dk
-    from daekit import animate
     from daekit.examples import mechanisms
 
     progress = not quiet
@@ -229,7 +239,8 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _say(_table(prow))
     _drift_figure(prow, f"3D pendulum, {t_end:g} s, rtol = atol = 1e-6: constraint drift and energy",
                   out / "pendulum3d_drift.png")
-    _save(prow[0].trajectory.plot(["p"]), out / "pendulum3d_positions.png")
+    _positions_figure(next(row for row in prow if row.remedy == "projection"),
+                      out / "pendulum3d_positions.png")
 
     # ------------------------------------------------------------------ delta robot
     _say("")
@@ -271,19 +282,8 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
                       out / "delta_robot_drift.png")
 
     # ------------------------------------------------------------------ animations
-    if animations:
-        done = _bar(progress, "animations")
-        t0 = time.perf_counter()
-        tr = next(row.trajectory for row in prow if row.remedy == "projection")
-        k = t <= min(t_end, 10.0)
-        animate.animate_pendulum(tr.t[k], tr["p"][k], out / "pendulum3d.gif", max_frames=100)
-        if drow:
-            trd = next(row.trajectory for row in drow if row.remedy == "projection")
-            k = trd.t <= min(t_end, 10.0)
-            dd = dk.examples.DELTA_ROBOT_DATA
-            animate.animate_delta_robot(trd.t[k], trd["alpha"][k], trd["p"][k], dd["r"], dd["a"],
-                                        dd["L"], out / "delta_robot.gif", max_frames=100)
-        done(time.perf_counter() - t0)
+    if gifs:
+        _animations(out, r, init, prow, drow, t_end, progress)
 
     # ------------------------------------------------------------------ optimal control
     if ocp:
@@ -307,6 +307,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _say(f"Figures written to {out.resolve()}:")
     for f in sorted(out.iterdir()):
         _say(f"  {f.name}")
+    if not gifs:
+        _say("Animations (GIF, real time; the drift of an unstabilized pendulum among them): "
+             "daekit tour --gifs")
     return rows
 
 
@@ -340,3 +343,79 @@ def _ocp_section(out: Path, progress: bool) -> None:
          f"({naive.stats.get('return_status')}): the redundant conditions make the constraint "
          "Jacobian rank deficient.")
     ocp_examples.pendulum3d_periodic_figure(sol, str(out / "pendulum3d_periodic_ocp.png"))
+
+
+def _positions_figure(row: RemedyResult, path: Path, window: float = 10.0) -> None:
+    """The bob's coordinates of one run: the first and the last ``window`` seconds side by side
+    (the whole run in one column when it is shorter than two windows)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from daekit.plot import remedy_color
+
+    tr = row.trajectory
+    t, p = tr.t, tr["p"]
+    t0, t1 = float(t[0]), float(t[-1])
+    spans = [(t0, t1)] if t1 - t0 <= 2 * window else [(t0, t0 + window), (t1 - window, t1)]
+    fig, axes = plt.subplots(3, len(spans), figsize=(5.2 * len(spans) + 1.0, 6.6), sharey="row",
+                             squeeze=False)
+    colour = remedy_color(row.remedy)
+    for j, (a, b) in enumerate(spans):
+        k = (t >= a - 1e-9) & (t <= b + 1e-9)
+        for i, name in enumerate("xyz"):
+            ax = axes[i, j]
+            ax.plot(t[k], p[k, i], color=colour, lw=1.2)
+            ax.set_xlim(a, b)
+            ax.grid(True, alpha=0.3)
+            if j == 0:
+                ax.set_ylabel(f"{name} = p[{i}] [m]")
+        axes[0, j].set_title(f"t in [{a:g}, {b:g}] s", fontsize=10)
+        axes[-1, j].set_xlabel("t [s]")
+    fig.suptitle(f"3D pendulum, bob position with {row.remedy} (rtol = atol = 1e-6): "
+                 + (f"first and last {window:g} s of {t1 - t0:g} s"
+                    if len(spans) == 2 else f"{t1 - t0:g} s"), fontsize=11)
+    fig.tight_layout()
+    _save(fig, path, dpi=100)
+
+
+def _animations(out: Path, reduced, init, prow: list, drow: list, t_end: float,
+                progress: bool) -> None:
+    """The GIFs, in real time at 20 frames per second, 480 pixels: the pendulum and the delta
+    robot (projection, the first 10 s), and the drift of the unstabilized pendulum next to a
+    projected one at a loose tolerance."""
+    import daekit as dk
+    from daekit import animate
+    from daekit.plot import remedy_color
+
+    done = _bar(progress, "animations (GIF, real time)")
+    t0 = time.perf_counter()
+    span = min(t_end, 10.0)
+    tr = next(row.trajectory for row in prow if row.remedy == "projection")
+    k = tr.t <= span + 1e-9
+    animate.animate_pendulum(tr.t[k], tr["p"][k], out / "pendulum3d.gif", fps=20, real_time=True,
+                             title="3D pendulum, projection")
+    if drow:
+        trd = next(row.trajectory for row in drow if row.remedy == "projection")
+        k = trd.t <= span + 1e-9
+        dd = dk.examples.DELTA_ROBOT_DATA
+        animate.animate_delta_robot(trd.t[k], trd["alpha"][k], trd["p"][k], dd["r"], dd["a"],
+                                    dd["L"], out / "delta_robot.gif", fps=20, real_time=True,
+                                    title="delta robot, projection")
+    # Drift made visible: a loose tolerance and a long span, nothing scaled up.
+    tol, drift_span, fps = 3e-4, min(t_end, 30.0), 10
+    t = np.linspace(0.0, drift_span, int(round(20 * drift_span)) + 1)  # shown at 10 fps
+    runs = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for label, stab in (("no stabilization", None), ("projection", "projection")):
+            runs[label] = dk.simulate(reduced, t, init, rtol=tol, atol=tol,
+                                      stabilization=stab)["p"]
+    animate.animate_drift(
+        t, runs, 1.0, out / "pendulum3d_drift.gif", fps=fps, real_time=True,
+        colors={lab: remedy_color(lab) for lab in runs}, pixels=480,
+        title=f"3D pendulum, index-1 form at a loose tolerance rtol = atol = {tol:.0e}, "
+              f"{drift_span:g} s in real time, nothing exaggerated:\nwithout stabilization the "
+              "rod's length drifts away from L = 1 m; with projection it stays 1 m")
+    done(time.perf_counter() - t0)

@@ -100,7 +100,8 @@ l3 = pendulum3d
 
 #: Angles of the three arms of the delta robot about the vertical axis.
 DELTA_GAMMA = (0.0, 2.0 * np.pi / 3.0, 4.0 * np.pi / 3.0)
-_DELTA_DEFAULTS = {
+#: Default geometry and masses of the lecture's delta robot (SI units).
+DELTA_DEFAULTS = {
     "r": 0.2,  # distance of the motor axes from the vertical axis [m]
     "a": 0.3,  # length of an upper arm [m]
     "L": 0.6,  # length of a lower (parallel) rod [m]
@@ -200,7 +201,7 @@ def delta_robot_home(alpha=(0.3, 0.3, 0.3), **data: float) -> dict[str, np.ndarr
     >>> bool(abs(h["p"][0]) < 1e-12 and h["p"][2] < 0)
     True
     """
-    d = dict(_DELTA_DEFAULTS)
+    d = dict(DELTA_DEFAULTS)
     unknown = set(data) - set(d)
     if unknown:
         from ..errors import ModelError

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..mechanics import LagrangianSystem
-from .lecture import _DELTA_DEFAULTS, DELTA_GAMMA, delta_robot_home
+from .lecture import DELTA_DEFAULTS, DELTA_GAMMA, delta_robot_home
 
 __all__ = [
     "lagrangian_pendulum3d",
@@ -108,7 +108,7 @@ def lagrangian_planar_chain(
 
 #: Data of the Lagrangian delta robot: the data of :func:`daekit.examples.delta_robot`, plus
 #: the viscous friction ``b`` in the motors [N m s].
-DELTA_ROBOT_DATA = {**_DELTA_DEFAULTS, "b": 0.0}
+DELTA_ROBOT_DATA = {**DELTA_DEFAULTS, "b": 0.0}
 _GAMMA = DELTA_GAMMA
 
 

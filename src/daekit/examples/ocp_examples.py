@@ -263,21 +263,23 @@ def pendulum3d_periodic_figure(sol, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(12, 4))
-    ax1 = fig.add_subplot(1, 3, 1, projection="3d")
-    p = sol["p"]
-    ax1.plot(p[:, 0], p[:, 1], p[:, 2])
-    ax1.scatter(*p[0], color="k")
-    # equal scales on all axes, so that a planar swing looks planar (not a 1e-17 y-axis)
-    centre = 0.5 * (p.max(axis=0) + p.min(axis=0))
-    half = 0.55 * max(float(np.max(p.max(axis=0) - p.min(axis=0))), 1e-3)
-    ax1.set_xlim(centre[0] - half, centre[0] + half)
-    ax1.set_ylim(centre[1] - half, centre[1] + half)
-    ax1.set_zlim(centre[2] - half, centre[2] + half)
-    ax1.set_xlabel("x")
-    ax1.set_ylabel("y")
-    ax1.set_zlabel("z")
-    ax1.set_title("orbit p(t)")
+    from ..plot import plot_in_plane
+
+    fig = plt.figure(figsize=(13, 4.2))
+    ax1 = fig.add_subplot(1, 3, 1)
+    p = np.asarray(sol["p"], dtype=float)
+    # the orbit is drawn in the plane it lies in (a planar swing: the plane y = 0), with the
+    # pivot and the rod at t = 0, on equal scales
+    _, plane = plot_in_plane(np.vstack([p, np.zeros((1, 3))]), ax=ax1, color="none")
+    q = plane.project(p)
+    piv = plane.project(np.zeros((1, 3)))[0]
+    ax1.plot(q[:, 0], q[:, 1], color="tab:blue", lw=2, label="orbit p(t)")
+    ax1.plot([piv[0], q[0, 0]], [piv[1], q[0, 1]], "-", color="0.3", lw=1.2, label="rod at t = 0")
+    ax1.plot(*piv, "ks", ms=5)
+    ax1.plot(*q[0], "o", color="k", ms=5, label="p(0) = p(T)")
+    ax1.legend(fontsize=7, loc="upper right")
+    ax1.set_title(f"orbit in the plane {plane.name} (off it by <= {plane.out_of_plane:.0e} m)",
+                  fontsize=9)
     ax2 = fig.add_subplot(1, 3, 2)
     ax2.step(sol.t, sol["u"], where="pre")
     ax2.legend(["u[0]", "u[1]", "u[2]"], fontsize=7)
@@ -287,7 +289,7 @@ def pendulum3d_periodic_figure(sol, path: str) -> None:
     ax3.semilogy(sol.t, np.abs(sol.invariants) + 1e-18)
     ax3.legend(sol.invariant_names, fontsize=7)
     ax3.set_xlabel("t [s]")
-    ax3.set_ylabel("|invariant|")
+    ax3.set_ylabel("|invariant| [m^2], [m^2/s]")
     ax3.set_title("invariants (imposed at t = 0 only)")
     fig.suptitle(f"3D pendulum periodic orbit, T = {sol.T:g} s, "
                  f"{sol.boundary.rank} of {sol.boundary.n_conditions} boundary conditions kept")

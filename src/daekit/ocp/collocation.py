@@ -15,17 +15,32 @@ time: the algebraic unknowns ``z_0`` (with ``alg = 0``), where the invariants ar
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
 
 import casadi as ca
 import numpy as np
 
 from .nlp import NLPBuilder
+from .transcription import Transcription, finish, params_and_time
 
 __all__ = ["radau_coefficients", "transcribe", "Transcription"]
 
 
 def radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Radau IIA coefficients of degree ``d`` (cached; see :func:`_radau_coefficients`).
+
+    >>> radau_coefficients(2)[0].round(4).tolist()
+    [0.0, 0.3333, 1.0]
+    """
+    return tuple(np.array(v) for v in _radau_cached(int(d)))
+
+
+@functools.lru_cache(maxsize=8)
+def _radau_cached(d: int):
+    return _radau_coefficients(d)
+
+
+def _radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points ``tau = [0, tau_1..tau_d]``, derivative matrix ``C`` (``C[r, j]``: derivative of the
     ``r``-th Lagrange basis polynomial through ``tau`` at ``tau_j``), quadrature weights ``b``
     (Radau IIA, for ``tau_1..tau_d``) and ``e0`` (the degree ``d - 1`` interpolant through the
@@ -58,132 +73,79 @@ def radau_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     return tau, C, b, e0
 
 
-@dataclass
-class Transcription:
-    builder: NLPBuilder
-    J: ca.SX
-    grid: ca.Function  # V -> (tfrac (1 x Nt), X, Z, W, T, P)
-    ends: ca.Function  # V -> (v0, vT, P, T)
-    method: str
-    nt: int
-    hessian_exact: bool = True
-    controls: ca.Function | None = None  # V -> (nw, N * ncoef): the control of each interval
-    node_index: list[int] | None = None  # grid column of each interval boundary t_k
-    ncoef: int = 1  # control values per interval (1: constant, d: polynomial)
+def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
+               selectors=(), pins=()) -> Transcription:
+    """Build the collocation NLP of ``prob`` (a :class:`~daekit.ocp.compiled.Problem`) with the
+    boundary conditions ``kept`` (indices) as equalities (and the ``selectors`` and ``pins`` of
+    :meth:`~daekit.ocp.compiled.Problem.add_boundary`); ``guess(t)`` gives ``(X, Z, W)`` at
+    times ``t`` of a horizon ``T_guess``.
 
-
-def transcribe(ocp, guess, T_guess: float | None = None,
-                p_guess=None) -> Transcription:
-    """Build the collocation NLP of ``ocp`` (an :class:`daekit.ocp.OCP` after preparation);
-    ``guess(t)`` gives ``(X, Z, W)`` at times ``t`` of a horizon ``T_guess``."""
-    a = ocp._aug
-    N, d = ocp.intervals, ocp.degree
+    Vectorized: the states at all ``N d + 1`` grid points are one symbolic matrix, the model is
+    evaluated once over all collocation points (``Function.map``) and the collocation
+    equations are ``d`` matrix expressions, so building the NLP costs no Python loop over the
+    intervals."""
+    a = prob.aug
+    N, d = prob.intervals, prob.degree
     tau, C, b, e0 = radau_coefficients(d)
     nx, nz, nw = a.nx, a.nz, a.nw
+    M = N * d
     B = NLPBuilder(ca.SX)
-    f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, ocp._lagrange])
+    f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, prob.lagrange])
 
     # parameters and final time
-    Tg = ocp._T_guess if T_guess is None else float(T_guess)
-    P, T = _params_and_time(ocp, B, T_guess=Tg, p_guess=p_guess)
+    Tg = prob.T_guess if T_guess is None else float(T_guess)
+    P, T = params_and_time(prob, B, T_guess=Tg, p_guess=p_guess)
     h = T / N
-    xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
+    xlb, xub, zlb, zub, wlb, wub = prob.simple_bounds()
+    an = [f"equation {n!r}" for n in prob.alg_names]
+    fr = np.concatenate([[0.0], ((np.arange(N).reshape(-1, 1) + tau[1:]) / N).ravel()])
+    gx, gz, gw = guess(fr * Tg)
 
-    def tv(frac):  # times of the guess
-        return np.atleast_1d(np.asarray(frac, float)) * Tg
+    def block(name, n, cols, lb, ub, g):
+        v, _ = B.var(name, n * cols, np.tile(lb, cols), np.tile(ub, cols),
+                     np.asarray(g, float).reshape(n, cols).ravel("F"))
+        return ca.reshape(v, n, cols)
 
-    g0x, g0z, g0w = guess(tv(0.0))
-    X0, _ = B.var("x_0", nx, xlb, xub, g0x[:, 0])
-    Z0, _ = B.var("z_0", nz, zlb, zub, g0z[:, 0])
-    Xgrid, Zgrid, Wgrid, fr = [X0], [Z0], [], [0.0]
-    Xk = X0
-    J = 0
-    W0 = None
-    Wint = []
-    for k in range(N):
-        fr_k = [(k + tau[j]) / N for j in range(1, d + 1)]
-        gx, gz, gw = guess(tv(fr_k))
-        if ocp.control_mode == "constant":
-            Wk, _ = B.var(f"w_{k}", nw, wlb, wub, gw.mean(axis=1) if nw else 0.0)
-            Wc = [Wk] * d
-            Wint.append(Wk)
-        else:
-            Wc = [B.var(f"w_{k}_{j}", nw, wlb, wub, gw[:, j - 1])[0] for j in range(1, d + 1)]
-            Wint.extend(Wc)
-        if k == 0:
-            W0 = Wc[0] if ocp.control_mode == "constant" else sum(
-                e0[j] * Wc[j] for j in range(d)
-            )
-            Wgrid.append(W0)
-            B.con(f(0.0, X0, Z0, W0, P)[1], 0.0, 0.0, "algebraic equations", 0.0, "alg")
-            if a.inv.numel():
-                inv0 = ca.substitute(
-                    [a.inv], [ca.vertcat(a.t, a.x, a.z, a.w, a.p)],
-                    [ca.vertcat(0.0, X0, Z0, W0, P)],
-                )[0]
-                B.con(inv0, 0.0, 0.0, "invariants", 0.0, "invariant", list(a.inv_names))
-            ocp._add_path(B, 0.0, X0, Z0, W0, P, 0.0)
-        Xs = [Xk]
-        Zs = []
-        for j in range(1, d + 1):
-            Xj, _ = B.var(f"x_{k}_{j}", nx, xlb, xub, gx[:, j - 1])
-            Zj, _ = B.var(f"z_{k}_{j}", nz, zlb, zub, gz[:, j - 1])
-            Xs.append(Xj)
-            Zs.append(Zj)
-        for j in range(1, d + 1):
-            tkj = h * (k + tau[j])
-            ode, alg, L = f(tkj, Xs[j], Zs[j - 1], Wc[j - 1], P)
-            xp = sum(C[r, j] * Xs[r] for r in range(d + 1))
-            B.con(xp - h * ode, 0.0, 0.0, f"dynamics on interval {k}", fr_k[j - 1], "dynamics")
-            B.con(alg, 0.0, 0.0, "algebraic equations", fr_k[j - 1], "alg")
-            if ocp._has_lagrange:
-                J = J + h * b[j - 1] * L
-            ocp._add_path(B, tkj, Xs[j], Zs[j - 1], Wc[j - 1], P, fr_k[j - 1])
-            Xgrid.append(Xs[j])
-            Zgrid.append(Zs[j - 1])
-            Wgrid.append(Wc[j - 1])
-            fr.append(fr_k[j - 1])
-        Xk = Xs[d]
-    XT, ZT, WT = Xgrid[-1], Zgrid[-1], Wgrid[-1]
-    if ocp._has_mayer:
-        J = J + ocp._mayer_fun(T, XT, ZT, WT, P)
-    v0 = ca.vertcat(X0, Z0, W0)
-    vT = ca.vertcat(XT, ZT, WT)
-    ocp._add_boundary(B, v0, vT, P, T)
-    V = B.V()
-    grid = ca.Function(
-        "grid", [V],
-        [ca.DM(fr).T, ca.horzcat(*Xgrid), ca.horzcat(*Zgrid), ca.horzcat(*Wgrid), T, P],
-    )
-    ends = ca.Function("ends", [V], [v0, vT, P, T])
-    controls = ca.Function("controls", [V], [ca.horzcat(*Wint)])
-    ncoef = 1 if ocp.control_mode == "constant" else d
-    return Transcription(B, ca.SX(J), grid, ends, f"Radau IIA collocation, degree {d}", len(fr),
-                         controls=controls, node_index=[k * d for k in range(N + 1)],
-                         ncoef=ncoef)
-
-
-def _params_and_time(ocp, B: NLPBuilder, T_guess: float | None = None, p_guess=None):
-    """Parameters (free ones as decision variables, started at ``p_guess`` when given) and the
-    final time (a decision variable when free, started at ``T_guess`` clipped to its bounds)."""
-    a = ocp._aug
-    S = B.sym
-    entries = []
-    for i, nm in enumerate(a.p_names):
-        if nm in ocp._free_params:
-            lo, hi, g = ocp._free_params[nm]
-            if p_guess is not None and np.isfinite(p_guess[i]):
-                g = float(np.clip(p_guess[i], lo, hi))
-            v, _ = B.var(f"param_{nm}", 1, lo, hi, g)
-            entries.append(v)
-        else:
-            entries.append(S(float(ocp._p_values[i])))
-    P = ca.vertcat(*entries) if entries else S(0, 1)
-    if ocp._T_free is not None:
-        lo, hi, g = ocp._T_free
-        if T_guess is not None:
-            g = float(np.clip(T_guess, lo, hi))
-        T, _ = B.var("T", 1, lo, hi, g)
+    X = block("x", nx, M + 1, xlb, xub, gx)
+    Z = block("z", nz, M + 1, zlb, zub, gz)
+    if prob.control_mode == "constant":
+        Wv = block("w", nw, N, wlb, wub, gw[:, 1:].reshape(nw, N, d).mean(axis=2))
+        Wc = ca.repmat(Wv, d, 1).reshape((nw, M)) if nw else ca.SX(0, M)
+        W0 = Wv[:, 0]
+        ncoef = 1
     else:
-        T = S(ocp._T_fixed)
-    return P, T
+        Wv = block("w", nw, M, wlb, wub, gw[:, 1:])
+        Wc = Wv
+        W0 = sum(float(e0[j]) * Wv[:, j] for j in range(d))
+        ncoef = d
+    tc = h * ca.DM((np.arange(N).reshape(-1, 1) + tau[1:]).ravel()).T  # collocation times
+    Pm = ca.repmat(P, 1, M)
+    ode, alg, L = f.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+    # t = 0: algebraic equations, invariants, path constraints
+    alg0 = f(0.0, X[:, 0], Z[:, 0], W0, P)[1]
+    B.con(alg0, 0.0, 0.0, "algebraic equations", 0.0, "alg", an)
+    if a.inv.numel():
+        inv0 = ca.substitute([a.inv], [ca.vertcat(a.t, a.x, a.z, a.w, a.p)],
+                             [ca.vertcat(0.0, X[:, 0], Z[:, 0], W0, P)])[0]
+        B.con(inv0, 0.0, 0.0, "invariants", 0.0, "invariant", list(a.inv_names))
+    prob.add_path(B, 0.0, X[:, 0], Z[:, 0], W0, P, 0.0)
+    # collocation: for each Radau point j, all intervals at once
+    for j in range(1, d + 1):
+        xp = sum(float(C[r, j]) * X[:, r:r + M - d + 1:d] for r in range(d + 1))
+        B.con(ca.vec(xp - h * ode[:, j - 1::d]), 0.0, 0.0, "dynamics", None, "dynamics",
+              [f"dynamics on interval {k}" for k in range(N) for _ in range(nx)],
+              times=np.repeat(fr[j::d], nx))
+    B.con(ca.vec(alg), 0.0, 0.0, "algebraic equations", None, "alg", an * M,
+          times=np.repeat(fr[1:], nz))
+    if prob.path_fun is not None:
+        pth = prob.path_fun.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+        npth = prob.path_lb.size
+        B.con(ca.vec(pth), np.tile(prob.path_lb, M), np.tile(prob.path_ub, M),
+              "path constraints", None, "path", list(prob.path_labels) * M,
+              times=np.repeat(fr[1:], npth))
+    J = 0
+    if prob.has_lagrange:
+        J = h * sum(float(b[j - 1]) * ca.sum2(L[:, j - 1::d]) for j in range(1, d + 1))
+    Wgrid = ca.horzcat(W0, Wc)
+    return finish(prob, B, ca.SX(J), P, T, fr, X, Z, Wgrid, Wv, kept, selectors, pins,
+                  f"Radau IIA collocation, degree {d}", [k * d for k in range(N + 1)], ncoef)

@@ -46,7 +46,7 @@ import numpy as np
 import scipy.linalg as sla
 
 __all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
-           "project_ends", "restricted_jacobian", "conflicting_conditions"]
+           "project_ends", "restricted_jacobian", "conflicting_conditions", "equilibrate"]
 
 
 @dataclass
@@ -87,6 +87,19 @@ class BoundaryAnalysis:
     residual : float
         Largest residual of the projection onto the set where all conditions, the algebraic
         equations and the invariants hold (zero when they are consistent).
+    proven : bool
+        The contradiction is certain (affine conditions that contradict each other by
+        themselves, or a value outside the variable's bounds); only then is IPOPT not run.
+    bound_conflicts : list of str
+        Conditions fixing a variable outside its bounds.
+    selectors : list of (int, float, float)
+        Dropped conditions that select a branch, imposed as ``lo <= c <= hi``.
+    degenerate : bool
+        The rank at the analysis point is lower than nearby (see :mod:`daekit.ocp.boundary`).
+    pins : list of (str, int, float, str)
+        At an end where the conditions are degenerate but select one isolated point of the
+        manifold, that point's values of an independent subset of the states, imposed instead
+        of the conditions of that end (which are checked at the solution).
     """
 
     labels: list[str]
@@ -104,6 +117,11 @@ class BoundaryAnalysis:
     conflict_alone: bool = False
     conflict_residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
     residual: float = 0.0
+    proven: bool = False
+    bound_conflicts: list[str] = field(default_factory=list)
+    selectors: list[tuple[int, float, float]] = field(default_factory=list)
+    degenerate: bool = False
+    pins: list[tuple[str, int, float, str]] = field(default_factory=list)
 
     @property
     def n_conditions(self) -> int:
@@ -116,10 +134,24 @@ class BoundaryAnalysis:
 
 def null_basis(J: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     """Orthonormal basis of the null space of ``J`` (columns)."""
-    J = np.atleast_2d(np.asarray(J, dtype=float))
+    J = equilibrate(np.atleast_2d(np.asarray(J, dtype=float)))
     if J.shape[0] == 0:
         return np.eye(J.shape[1])
     return sla.null_space(J, rcond=tol)
+
+
+def equilibrate(J: np.ndarray) -> np.ndarray:
+    """The rows of ``J`` scaled to unit length (zero rows stay zero): rank decisions and
+    projections then do not depend on how an equation is scaled (``0 = z + 1e8 x - u``).
+
+    >>> equilibrate(np.array([[3.0, 4.0], [0.0, 0.0]])).tolist()
+    [[0.6, 0.8], [0.0, 0.0]]
+    """
+    J = np.atleast_2d(np.asarray(J, dtype=float))
+    if J.size == 0:
+        return J
+    nrm = np.linalg.norm(J, axis=1)
+    return J / np.where(nrm > 0, nrm, 1.0)[:, None]
 
 
 def _rank(A: np.ndarray, tol: float) -> int:
@@ -207,7 +239,7 @@ def restricted_jacobian(J_bc, J_man0, J_manT, n_conditions: int):
     N0 = null_basis(J_man0)
     NT = null_basis(J_manT)
     n = np.atleast_2d(J_man0).shape[1]
-    J_bc = np.atleast_2d(np.asarray(J_bc, dtype=float)).reshape(n_conditions, 2 * n)
+    J_bc = equilibrate(np.atleast_2d(np.asarray(J_bc, dtype=float)).reshape(n_conditions, 2 * n))
     return np.hstack([J_bc[:, :n] @ N0, J_bc[:, n:] @ NT]), (N0.shape[1], NT.shape[1])
 
 
@@ -273,16 +305,28 @@ def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
 
     ``fun`` returns ``(residual, Jacobian with respect to (v0, vT))``; the steps are the
     least-norm solutions of the linearized equations (so redundant or, near a solution,
-    dependent equations do no harm), halved while they do not decrease the residual. Returns
-    ``(v0, vT, largest residual)``; where the equations cannot all hold, the point is a local
-    least-squares one.
+    dependent equations do no harm), halved while they do not decrease the residual. Each
+    equation is scaled by the norm of its gradient at the start, so residuals are distances
+    and an equation's scale (``0 = z + 1e8 x - u``) does not matter. Returns
+    ``(v0, vT, largest scaled residual)``; where the equations cannot all hold, the point is a
+    local least-squares one.
     """
     n = np.size(v0)
     y = np.concatenate([np.ravel(v0), np.ravel(vT)]).astype(float)
 
+    r0, J0 = fun(y[:n], y[n:], p, T)
+    r0 = np.asarray(r0, float).ravel()
+    if r0.size == 0:
+        return y[:n], y[n:], 0.0
+    J0 = np.asarray(J0, float).reshape(r0.size, -1)
+    nrm = np.linalg.norm(J0, axis=1)
+    # rows scaled by their Jacobian's norm at the start: a residual is then a distance
+    sc = 1.0 / np.where(nrm > 1e-300, nrm, 1.0)
+
     def ev(y):
         r, J = fun(y[:n], y[n:], p, T)
-        return np.asarray(r, float).ravel(), np.asarray(J, float)
+        r = np.asarray(r, float).ravel()
+        return sc * r, sc[:, None] * np.asarray(J, float).reshape(r.size, 2 * n)
 
     r, J = ev(y)
     for _ in range(max_iter):

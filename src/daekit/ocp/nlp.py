@@ -24,6 +24,7 @@ class RowGroup:
     time: float | ca.SX | None = None
     kind: str = "path"
     names: list[str] | None = None
+    times: np.ndarray | None = None  # per row (fraction of T), when the rows differ in time
 
 
 @dataclass
@@ -53,15 +54,18 @@ class NLPBuilder:
         self.nv += n
         return v, start
 
-    def con(self, expr, lb, ub, label: str, time=None, kind: str = "path", names=None) -> None:
-        """Rows ``lb <= expr <= ub`` with a label for diagnostics."""
+    def con(self, expr, lb, ub, label: str, time=None, kind: str = "path", names=None,
+            times=None) -> None:
+        """Rows ``lb <= expr <= ub`` with a label for diagnostics (``names``, ``times``: per
+        row)."""
         n = int(expr.numel())
         if n == 0:
             return
         self.g.append(expr)
         self.lbg.append(np.broadcast_to(np.asarray(lb, float), (n,)).copy())
         self.ubg.append(np.broadcast_to(np.asarray(ub, float), (n,)).copy())
-        self.groups.append(RowGroup(self.ng, self.ng + n, label, time, kind, names))
+        self.groups.append(RowGroup(self.ng, self.ng + n, label, time, kind, names,
+                                    None if times is None else np.asarray(times, float)))
         self.ng += n
 
     def arrays(self):

@@ -40,8 +40,8 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
-from .collocation import Transcription, _params_and_time
 from .nlp import NLPBuilder, quiet
+from .transcription import Transcription, finish, params_and_time
 
 __all__ = ["transcribe", "interval_integrator", "DEFAULT_INTEGRATOR_OPTIONS"]
 
@@ -102,11 +102,12 @@ def interval_integrator(a, lagrange=None, tout=(1.0,), ncoef: int = 1, options=N
         ) from None
 
 
-def transcribe(ocp, guess, T_guess: float | None = None,
-                p_guess=None) -> Transcription:
-    """Build the multiple shooting NLP of ``ocp`` (after :meth:`OCP._prepare`)."""
-    a = ocp._aug
-    N = ocp.intervals
+def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
+               selectors=(), pins=()) -> Transcription:
+    """Build the multiple shooting NLP of ``prob`` (a :class:`~daekit.ocp.compiled.Problem`);
+    arguments as for :func:`daekit.ocp.collocation.transcribe`."""
+    a = prob.aug
+    N = prob.intervals
     nx, nz, nw = a.nx, a.nz, a.nw
     if nx == 0:
         raise OCPError(
@@ -114,12 +115,13 @@ def transcribe(ocp, guess, T_guess: float | None = None,
             "algebraic: use method='collocation'"
         )
     B = NLPBuilder(ca.MX)
-    Tg = ocp._T_guess if T_guess is None else float(T_guess)
-    P, T = _params_and_time(ocp, B, T_guess=Tg, p_guess=p_guess)
+    Tg = prob.T_guess if T_guess is None else float(T_guess)
+    P, T = params_and_time(prob, B, T_guess=Tg, p_guess=p_guess)
     h = T / N
-    xlb, xub, zlb, zub, wlb, wub = ocp._simple_bounds()
-    F = interval_integrator(a, ocp._lagrange if ocp._has_lagrange else None,
-                            options=ocp.integrator_options)
+    xlb, xub, zlb, zub, wlb, wub = prob.simple_bounds()
+    an = [f"equation {n!r}" for n in prob.alg_names]
+    F = interval_integrator(a, prob.lagrange if prob.has_lagrange else None,
+                            options=prob.integrator_options)
     alg_fun = ca.Function("alg", [a.t, a.x, a.z, a.w, a.p], [a.alg])
     inv_fun = ca.Function("inv", [a.t, a.x, a.z, a.w, a.p], [a.inv])
 
@@ -140,53 +142,41 @@ def transcribe(ocp, guess, T_guess: float | None = None,
     res = F.map(N)(x0=ca.horzcat(*Xs[:N]), z0=ca.horzcat(*Zs[:N]), p=Pint)
     xf = res["xf"]
     J = ca.MX(0)
-    if ocp._has_lagrange:
+    if prob.has_lagrange:
         # one decision variable per interval for its share of the integral, so that the
         # objective is linear and IPOPT's objective evaluations integrate nothing
-        gq = _quad_guess(F.map(N), gx, gz, gw, ocp, Tg, p_guess, N)
+        gq = _quad_guess(F.map(N), gx, gz, gw, prob, Tg, p_guess, N)
         Qs = ca.vertcat(*[B.var(f"q_{k}", 1, -np.inf, np.inf, gq[k])[0] for k in range(N)])
         J = ca.sum1(Qs)
 
     # t = 0: algebraic equations, invariants, path constraints
-    B.con(alg_fun(0.0, Xs[0], Zs[0], W0, P), 0.0, 0.0, "algebraic equations", 0.0, "alg")
+    B.con(alg_fun(0.0, Xs[0], Zs[0], W0, P), 0.0, 0.0, "algebraic equations", 0.0, "alg", an)
     if a.inv.numel():
         B.con(inv_fun(0.0, Xs[0], Zs[0], W0, P), 0.0, 0.0, "invariants", 0.0, "invariant",
               list(a.inv_names))
-    ocp._add_path(B, 0.0, Xs[0], Zs[0], W0, P, 0.0)
+    prob.add_path(B, 0.0, Xs[0], Zs[0], W0, P, 0.0)
     for k in range(N):
         B.con(Xs[k + 1] - xf[:, k], 0.0, 0.0, f"continuity at the end of interval {k}",
               fr[k + 1], "dynamics")
-        if ocp._has_lagrange:
+        if prob.has_lagrange:
             B.con(Qs[k] - res["qf"][k], 0.0, 0.0, f"integral objective on interval {k}",
                   fr[k + 1], "dynamics")
         tk1 = (k + 1) * h
         B.con(alg_fun(tk1, Xs[k + 1], Zs[k + 1], Ws[k], P), 0.0, 0.0, "algebraic equations",
-              fr[k + 1], "alg")
-        ocp._add_path(B, tk1, Xs[k + 1], Zs[k + 1], Ws[k], P, fr[k + 1])
-    XT, ZT, WT = Xs[N], Zs[N], Ws[N - 1]
-    if ocp._has_mayer:
-        J = J + ocp._mayer_fun(T, XT, ZT, WT, P)
-    v0 = ca.vertcat(Xs[0], Zs[0], W0)
-    vT = ca.vertcat(XT, ZT, WT)
-    ocp._add_boundary(B, v0, vT, P, T)
-    V = B.V()
-    grid = ca.Function(
-        "grid", [V],
-        [ca.DM(fr).T, ca.horzcat(*Xs), ca.horzcat(*Zs), ca.horzcat(*Wnode), T, P],
-    )
-    ends = ca.Function("ends", [V], [v0, vT, P, T])
-    controls = ca.Function("controls", [V], [ca.horzcat(*Ws)])
+              fr[k + 1], "alg", an)
+        prob.add_path(B, tk1, Xs[k + 1], Zs[k + 1], Ws[k], P, fr[k + 1])
     plugin = "IDAS" if nz else "CVODES"
-    tol = {**DEFAULT_INTEGRATOR_OPTIONS, **(ocp.integrator_options or {})}
+    tol = {**DEFAULT_INTEGRATOR_OPTIONS, **(prob.integrator_options or {})}
     method = (f"multiple shooting on {plugin} (rtol {tol['reltol']:g}, atol {tol['abstol']:g}), "
               "one integrator mapped over the intervals")
-    return Transcription(B, J, grid, ends, method, N + 1, hessian_exact=False,
-                         controls=controls, node_index=list(range(N + 1)), ncoef=1)
+    return finish(prob, B, J, P, T, fr, ca.horzcat(*Xs), ca.horzcat(*Zs), ca.horzcat(*Wnode),
+                  ca.horzcat(*Ws), kept, selectors, pins, method,
+                  list(range(N + 1)), 1, hessian_exact=False)
 
 
-def _quad_guess(Fm, gx, gz, gw, ocp, Tg, p_guess, N) -> np.ndarray:
+def _quad_guess(Fm, gx, gz, gw, prob, Tg, p_guess, N) -> np.ndarray:
     """Each interval's share of the integral objective along the guess (one integration)."""
-    p = np.asarray(ocp._p_guess() if p_guess is None else p_guess, float).reshape(-1, 1)
+    p = np.asarray(prob.p_guess() if p_guess is None else p_guess, float).reshape(-1, 1)
     h = Tg / N
     Pint = np.vstack([gw.reshape(-1, N), np.repeat(p, N, axis=1),
                       h * np.arange(N).reshape(1, -1), np.full((1, N), h)])

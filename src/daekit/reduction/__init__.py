@@ -6,8 +6,10 @@
 - :func:`baumgarte`, :func:`ggl` -- stabilizations of a :class:`~daekit.ReducedDAE`.
 - :func:`time_derivative` -- total time derivative of a model expression.
 - :func:`format_reduced` -- a readable account of a reduced DAE.
+- :func:`as_reduced` -- the entry points' rule: a Model or LagrangianSystem is reduced for you.
 """
 
+from .accept import as_reduced
 from .differentiate import time_derivative
 from .dummy import dummy_derivatives, map_values, reselect, selection_condition
 from .format import format_reduced
@@ -15,6 +17,7 @@ from .reduce import check_index1, reduce_index
 from .stabilize import BaumgarteStiffnessWarning, baumgarte, ggl, time_scale
 
 __all__ = [
+    "as_reduced",
     "BaumgarteStiffnessWarning",
     "baumgarte",
     "ggl",

@@ -135,7 +135,7 @@ class Expansion:
 
 def sigma_offsets(model: Model, validate: bool = True):
     """Validate the model and return Pryce's (transversal, c, d) for its Sigma matrix."""
-    Model.require(model, "reduce_index")
+    model = Model.require(model, "reduce_index")
     if validate:
         model.validate()  # StructuralError naming the equations at fault
     inc = model.incidence()

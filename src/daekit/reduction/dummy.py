@@ -66,6 +66,7 @@ from ..model import Model
 from ..numerics import RANK_RTOL
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
+from ..threads import limit_blas_threads
 from .differentiate import derivative_name
 from .reduce import (
     _all_symbols,
@@ -350,6 +351,7 @@ def _select_stage(J: sp.csr_matrix, R: np.ndarray, C: np.ndarray):
     return [(R, C, cols, cond)], None
 
 
+@limit_blas_threads
 def dummy_derivatives(
     model: Model, point: Mapping | None = None, check: bool = True, seed: int = 0
 ) -> ReducedDAE:

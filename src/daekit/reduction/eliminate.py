@@ -6,25 +6,40 @@ constraint ``c(p) = 0``, has ``d_p = 2``: the reduced system carries ``p``, ``de
 as states, ``der(p,2)`` as an algebraic unknown, and ``der(p) - v`` as extra invariants, although
 ``der(p)`` is just ``v``.
 
-This module removes such duplicates. An equation element ``F_i`` with offset ``c_i >= 1`` is
-*explicit* in a derivative ``x_j^(k)`` (``k >= 1``, ``k = d_j - c_i``, so ``x_j^(k)`` would be a
-state) when
+This module removes such duplicates, and the algebraic unknowns an equation gives
+explicitly. An equation element ``F_i`` is *explicit* in a derivative ``x_j^(k)`` when
 
-    ``F_i = a x_j^(k) - g``,  ``a`` a nonzero constant, ``g`` free of ``x_j^(k)``
+    ``F_i = a x_j^(k) - g``,  ``a`` a nonzero constant or an expression of the parameters
+    only (``m`` in ``m v' = f``), ``g`` free of ``x_j^(k)``
 
-(checked with CasADi: the Jacobian ``dF_i/dx_j^(k)`` is a constant, which makes ``F_i`` affine in
-``x_j^(k)``). Then ``F_i^(s) = a x_j^(k+s) - g^(s)`` for ``s = 0..c_i``, and every symbol
-``x_j^(k+s)`` is replaced by ``g^(s) / a``: the states ``x_j^(k..d_j-1)`` and the algebraic unknown
-``x_j^(d_j)`` disappear, and with them the invariants ``F_i, ..., F_i^(c_i-1)`` and the
-algebraic equation ``F_i^(c_i)`` (they hold identically). The count of states minus invariants
-(the degrees of freedom) is unchanged, and the new algebraic Jacobian is the Schur complement
-of Pryce's system Jacobian with respect to the constant pivots ``a``, so it is nonsingular
-exactly where the old one was: the result is still index 1.
+(checked with CasADi, whole-vector: the nonzeros of the Jacobian ``dF/dx^(k)`` that depend on
+no symbol but parameters, nonzero at the parameters' default values). Two kinds:
+
+1. *Would-be states* (``c_i >= 1``, ``k = d_j - c_i >= 1``, as ``der(p)`` in ``p' = v``):
+   ``F_i^(s) = a x_j^(k+s) - g^(s)`` for ``s = 0..c_i``, and every symbol ``x_j^(k+s)`` is
+   replaced by ``g^(s) / a``: the states ``x_j^(k..d_j-1)`` and the algebraic unknown
+   ``x_j^(d_j)`` disappear, and with them the invariants ``F_i, ..., F_i^(c_i-1)`` and the
+   algebraic equation ``F_i^(c_i)`` (they hold identically).
+2. *Highest derivatives* (``c_i = 0``, ``k = d_j >= 1``, as ``der(v)`` in ``m v' = f(p, z)``;
+   ``highest=True``, the default of :func:`daekit.reduce_index`): ``x_j^(d_j) = g / a`` is
+   substituted into the ODE right-hand side and the other algebraic equations; it is no
+   algebraic unknown, and ``F_i`` no algebraic equation. The 3D pendulum then has the
+   lecture's hand-written form: ``x = (p, v)``, ``z = (z)``, ``alg = d2/dt2 rod`` with
+   ``v' = (u - m g e3 - z p)/m`` substituted.
+
+Either way the count of states minus invariants (the degrees of freedom) is unchanged, and
+the new algebraic Jacobian is the Schur complement of Pryce's system Jacobian with respect to
+the pivots ``a``, so it is nonsingular exactly where the old one was: the result is still
+index 1. A coefficient that depends on the state (a mass matrix ``M(q) v' = f``) is not a
+pivot that can be taken once for all: such a ``v'`` stays an algebraic unknown (the KKT form).
+A parameter-only coefficient is divided by symbolically; a parameter value that makes it zero
+makes the model singular in either form.
 
 The ``g^(s)`` are read off the levels the expansion already holds (``F_i^(s)`` with
 ``x_j^(k+s)`` set to zero: no new differentiation). Where ``g`` contains other eliminated
 symbols, the definitions are substituted into each other in dependency order; an elimination
-whose definitions would depend on themselves (a cycle) is not made.
+whose definitions would depend on themselves (a cycle, as for a constant but non-diagonal
+mass matrix) is not made.
 
 Example
 -------
@@ -32,8 +47,8 @@ Example
 >>> r = dk.reduce_index(dk.examples.pendulum3d())
 >>> r.x_names
 ['p[0]', 'p[1]', 'p[2]', 'v[0]', 'v[1]', 'v[2]']
->>> r.invariant_names, str(r.variables["der(p)[0]"])
-(['rod', 'd/dt rod'], 'v[0]')
+>>> r.z_names, r.invariant_names, str(r.variables["der(p)[0]"])
+(['z'], ['rod', 'd/dt rod'], 'v[0]')
 """
 
 from __future__ import annotations
@@ -77,33 +92,64 @@ class Elimination:
         return ca.substitute([ca.SX(e) for e in exprs], [self.syms], [self.defs])
 
 
-def _candidates(ex: Expansion) -> list[tuple[int, int, int, float]]:
-    """(i, j, k, a): equation element i is ``a x_j^(k) - g`` with a constant, k = d_j - c_i >= 1.
+def _constant_coefficients(J: ca.SX, model) -> tuple[np.ndarray, np.ndarray, list, np.ndarray]:
+    """The nonzeros of the sparse Jacobian ``J`` that are constants or depend on parameters
+    only, whole-vector: ``(rows, cols, exprs, values)`` with ``values`` at the parameters'
+    default values (entries that vanish there are left out)."""
+    r_idx, c_idx = J.sparsity().get_triplet()
+    if not r_idx:
+        return np.zeros(0, int), np.zeros(0, int), [], np.zeros(0)
+    nz = ca.vertcat(*J.nonzeros())
+    p = model.parameter_symbols
+    phash = {p[i].element_hash() for i in range(p.numel())}
+    others = [s for s in ca.symvar(nz) if s.element_hash() not in phash]
+    if others:
+        dep_rows, _ = ca.jacobian_sparsity(nz, ca.vertcat(*others)).get_triplet()
+        free = np.ones(nz.numel(), dtype=bool)
+        free[np.asarray(dep_rows, dtype=np.int64)] = False
+    else:
+        free = np.ones(nz.numel(), dtype=bool)
+    keep = np.nonzero(free)[0]
+    if not keep.size:
+        return np.zeros(0, int), np.zeros(0, int), [], np.zeros(0)
+    sel = nz[keep.tolist()]
+    if p.numel():
+        vals = np.asarray(ca.Function("coef", [p], [sel])(model.parameter_values),
+                          dtype=float).ravel()
+    else:
+        vals = np.asarray(ca.evalf(sel), dtype=float).ravel()
+    good = (vals != 0.0) & np.isfinite(vals)
+    keep, vals = keep[good], vals[good]
+    exprs = ca.vertsplit(sel[np.nonzero(good)[0].tolist()]) if keep.size else []
+    return (np.asarray(r_idx, dtype=np.int64)[keep], np.asarray(c_idx, dtype=np.int64)[keep],
+            exprs, vals)
 
-    One sparse Jacobian per distinct offset value ``c_i >= 1``, with respect to the symbols that
-    would be states.
+
+def _candidates(ex: Expansion, highest: bool = False) -> list[tuple[int, int, int, float, ca.SX]]:
+    """(i, j, k, a, a_expr): equation element i is ``a x_j^(k) - g`` with ``a`` a nonzero
+    constant or an expression of the parameters only, and ``g`` free of ``x_j^(k)``.
+
+    ``c_i >= 1``: ``k = d_j - c_i >= 1`` (``x_j^(k)`` would be a state, as ``der(p)`` in
+    ``p' = v``). ``c_i = 0`` (``highest``): ``k = d_j >= 1``, a highest derivative that would
+    be an algebraic unknown (``der(v)`` in ``m v' = f``). One sparse Jacobian per distinct
+    offset value, with respect to those symbols; the coefficients are sorted out whole-vector.
     """
     c, d = ex.c, ex.d
     F = ex.levels[0]
     out = []
-    for cv in sorted(set(int(v) for v in c[c >= 1])):
+    values = sorted(set(int(v) for v in c[c >= (0 if highest else 1)]))
+    for cv in values:
         rows = np.nonzero(c == cv)[0]
-        cols = np.nonzero(d - cv >= 1)[0]
-        if not len(cols):
+        cols = np.nonzero(d - cv >= 1)[0] if cv >= 1 else np.nonzero(d >= 1)[0]
+        if not len(cols) or not len(rows):
             continue
         X = ex.unknown(d - cv, cols)
         J = ca.jacobian(F[rows.tolist()], X)
-        r_idx, c_idx = J.sparsity().get_triplet()
-        nz = J.nonzeros()
-        for r, cc, e in zip(r_idx, c_idx, nz, strict=True):
-            if not e.is_constant():
-                continue
-            a = float(ca.DM(e))
-            if a == 0.0 or not np.isfinite(a):
-                continue
-            j = int(cols[cc])
-            out.append((int(rows[r]), j, int(d[j]) - cv, a))
-    out.sort()
+        rr, cc, exprs, vals = _constant_coefficients(J, ex.model)
+        for r, col, e, a in zip(rr, cc, exprs, vals, strict=True):
+            j = int(cols[col])
+            out.append((int(rows[r]), j, int(d[j]) - cv, float(a), e))
+    out.sort(key=lambda t: t[:3])
     return out
 
 
@@ -129,18 +175,20 @@ def _definitions(ex: Expansion, chosen):
     """Pairs, symbols and raw definitions ``g^(s)/a`` of the chosen eliminations."""
     c = ex.c
     pairs, syms, defs = [], [], []
-    maxc = max((int(c[i]) for i, _, _, _ in chosen), default=0)
+    maxc = max((int(c[e[0]]) for e in chosen), default=0)
     for s in range(maxc + 1):
-        sel = [(i, j, k, a) for i, j, k, a in chosen if int(c[i]) >= s]
+        sel = [e for e in chosen if int(c[e[0]]) >= s]
         if not sel:
             continue
-        Fs = ex.equation(s, [i for i, _, _, _ in sel])
-        Xs = ex.model.symbols_at([j for _, j, _, _ in sel], [k + s for _, _, k, _ in sel])
+        Fs = ex.equation(s, [e[0] for e in sel])
+        Xs = ex.model.symbols_at([e[1] for e in sel], [e[2] + s for e in sel])
         G = _free_of_own_symbol(Fs, Xs)  # = -g^(s)
-        inv_a = ca.DM([-1.0 / a for _, _, _, a in sel])
-        defs.append(G * inv_a)
+        if all(e[4].is_constant() for e in sel):
+            defs.append(G * ca.DM([-1.0 / e[3] for e in sel]))
+        else:  # parameter-dependent coefficients stay symbolic
+            defs.append(-G / ca.vertcat(*[e[4] for e in sel]))
         syms.append(Xs)
-        pairs += [(j, k + s) for _, j, k, _ in sel]
+        pairs += [(e[1], e[2] + s) for e in sel]
     if not pairs:
         return [], ca.SX(0, 1), ca.SX(0, 1)
     return pairs, ca.vertcat(*syms), ca.vertcat(*defs)
@@ -176,18 +224,23 @@ def _dependency_depth(sp: ca.Sparsity, n: int):
     return max(depth), []
 
 
-def find_eliminations(ex: Expansion) -> Elimination:
+def find_eliminations(ex: Expansion, highest: bool = False) -> Elimination:
     """The explicit derivatives of ``ex`` to eliminate, with their resolved definitions.
+
+    ``highest``: also the highest derivatives that an equation of offset 0 gives explicitly
+    (``der(v)`` in ``m v' = f``), which would otherwise be algebraic unknowns.
 
     Greedy: equation elements in order, each takes its first candidate whose unknown is not
     taken yet. Eliminations whose definitions form a cycle are dropped (and listed in
-    ``skipped``).
+    ``skipped``): a constant but non-diagonal mass matrix keeps its accelerations as
+    algebraic unknowns.
     """
     chosen, taken_j, taken_i = [], set(), set()
-    for i, j, k, a in _candidates(ex):
+    for cand in _candidates(ex, highest):
+        i, j = cand[0], cand[1]
         if i in taken_i or j in taken_j:
             continue
-        chosen.append((i, j, k, a))
+        chosen.append(cand)
         taken_i.add(i)
         taken_j.add(j)
     skipped: list[int] = []
@@ -199,15 +252,15 @@ def find_eliminations(ex: Expansion) -> Elimination:
                 defs = ca.substitute(defs, syms, defs)
             break
         bad_j = {pairs[r][0] for r in cyclic}
-        skipped += [i for i, j, _, _ in chosen if j in bad_j]
+        skipped += [e[0] for e in chosen if e[1] in bad_j]
         chosen = [e for e in chosen if e[1] not in bad_j]
     if not chosen:
         return Elimination(skipped=skipped)
     return Elimination(
-        equations=[i for i, _, _, _ in chosen],
-        unknowns=[j for _, j, _, _ in chosen],
-        orders=[k for _, _, k, _ in chosen],
-        coefficients=[a for _, _, _, a in chosen],
+        equations=[e[0] for e in chosen],
+        unknowns=[e[1] for e in chosen],
+        orders=[e[2] for e in chosen],
+        coefficients=[e[3] for e in chosen],
         pairs=pairs,
         syms=syms,
         defs=defs,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 
 from ..reduced import ReducedDAE
+from ..wording import count
 
 __all__ = ["format_reduced"]
 
@@ -24,14 +25,17 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
     >>> from daekit.reduction import reduce_index
     >>> text = format_reduced(reduce_index(dk.examples.pendulum_planar()))
     >>> print(text.splitlines()[0])
-    pendulum_planar reduced by differentiate: 4 states, 3 algebraic unknowns, 2 invariants
+    pendulum_planar reduced by differentiate: 4 states, 1 algebraic unknown, 2 invariants
     >>> "0 = d2/dt2 rod:" in text
     True
     """
+    from .accept import as_reduced
+
+    r = as_reduced(r, "format_reduced")
     name = getattr(r.model, "name", "model")
     out = [
-        f"{name} reduced by {r.method}: {r.nx} states, {r.nz} algebraic unknowns, "
-        f"{len(r.invariant_names)} invariants"
+        f"{name} reduced by {r.method}: {count(r.nx, 'state')}, "
+        f"{count(r.nz, 'algebraic unknown')}, {count(len(r.invariant_names), 'invariant')}"
         + (f", stabilization {r.stabilization}" if r.stabilization else "")
     ]
     if r.info.get("index") is not None:

@@ -12,12 +12,14 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
    ``0 = F_i^(c_i)``; their Jacobian with respect to ``z`` is Pryce's system Jacobian.
 4. Invariants: ``F_i^(k)`` for ``k < c_i``, named ``"rod"``, ``"d/dt rod"``, ...
 5. Elimination (default, ``eliminate=True``; :mod:`daekit.reduction.eliminate`): an equation
-   that says ``a x_j^(k) = g`` with a constant ``a`` and ``x_j^(k)`` a would-be state (``p' = v``)
-   defines ``x_j^(k)`` and its derivatives; they are replaced by ``g/a`` and its derivatives,
-   so they are neither states nor algebraic unknowns, and the equation drops out of the
-   invariants. The first-order 3D pendulum then has the lecture's index-1 form: states
-   ``(p, v)``, algebraic ``(v', z)``, invariants ``rod`` and ``d/dt rod``; ``r.variables``
-   still gives ``"der(p)"`` (as the expression ``v``).
+   that says ``a x_j^(k) = g`` with a constant or parameter-only ``a`` defines ``x_j^(k)``:
+   a would-be state (``p' = v``) is replaced, with its derivatives, by ``g/a`` and its
+   derivatives, and the equation drops out of the invariants; a highest derivative
+   (``m v' = f(p, z)``) is replaced by ``g/a`` and is no algebraic unknown. The first-order
+   3D pendulum then has the lecture's minimal index-1 form: states ``(p, v)``, algebraic
+   ``(z)`` only, invariants ``rod`` and ``d/dt rod``; ``r.variables`` still gives
+   ``"der(p)"`` (as the expression ``v``) and ``"der(v)"`` (as ``(u - m g e3 - z p)/m``).
+   ``eliminate="states"`` keeps the KKT form (``z = (v', z)``), ``False`` Pryce's scheme.
 6. Index-1 check: ``d alg / d z`` is evaluated (sparse) at random points and must be
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
@@ -39,8 +41,10 @@ Example
 >>> r = reduce_index(m)
 >>> r.x_names
 ['q[0]', 'q[1]', 'der(q)[0]', 'der(q)[1]']
->>> r.z_names, r.invariant_names
-(['der(q,2)[0]', 'der(q,2)[1]', 'T'], ['rod', 'd/dt rod'])
+>>> r.z_names, r.invariant_names     # der(q,2) = T q + g e2 is substituted
+(['T'], ['rod', 'd/dt rod'])
+>>> reduce_index(m, eliminate="states").z_names   # the KKT form
+['der(q,2)[0]', 'der(q,2)[1]', 'T']
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ from ..errors import DaekitError, ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
+from ..threads import limit_blas_threads
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
 
@@ -64,19 +69,22 @@ __all__ = ["reduce_index", "check_index1"]
 _DENSE_LIMIT = 400
 
 
+@limit_blas_threads
 def reduce_index(
     model: Model,
     method: str = "differentiate",
     point: dict | None = None,
     check: bool = True,
     seed: int = 0,
-    eliminate: bool = True,
+    eliminate: bool | str = True,
 ) -> ReducedDAE:
     """Reduce a model of any index to an index-1 semi-explicit DAE with its invariants.
 
     Parameters
     ----------
-    model : daekit.Model
+    model : daekit.Model or daekit.mechanics.LagrangianSystem
+        A LagrangianSystem is reduced as its :meth:`~daekit.mechanics.LagrangianSystem.model`
+        (its ``index1()`` is the mass-matrix form of the same reduction).
     method : ``"differentiate"`` or ``"dummy_derivatives"``
         ``"differentiate"``: Pryce's scheme (all derivatives below the highest become states,
         the undifferentiated equations and their lower derivatives are the invariants, which
@@ -90,11 +98,19 @@ def reduce_index(
         Check that ``d alg / d z`` is nonsingular (index 1) at random points.
     seed : int
         Seed of the random points.
-    eliminate : bool
-        For ``"differentiate"``: eliminate derivatives that an equation gives explicitly
-        (``p' = v``; see :mod:`daekit.reduction.eliminate`), the minimal index-1 form.
-        ``False`` gives Pryce's scheme as it is (every ``x_j^(k)``, ``k < d_j``, a state).
-        ``r.info["eliminated"]`` lists what was eliminated, by which equation, as what.
+    eliminate : bool or ``"states"``
+        For ``"differentiate"``: the minimal index-1 form (default ``True``; see
+        :mod:`daekit.reduction.eliminate`): derivatives that an equation gives explicitly with
+        a constant or parameter-only coefficient are substituted, both would-be states
+        (``der(p)`` in ``p' = v``) and highest derivatives that would be algebraic unknowns
+        (``der(v)`` in ``m v' = f(p, z)``). The 3D pendulum then has the lecture's form
+        ``x = (p, v)``, ``z = (z)``. A coefficient that depends on the state (a mass matrix
+        ``M(q)``) keeps the KKT form (``der(v)`` algebraic). ``"states"``: only the would-be
+        states (``z = (der(v), z)`` for the pendulum). ``False``: Pryce's scheme as it is
+        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.info["eliminated"]`` lists the
+        would-be states eliminated, ``r.info["substituted"]`` the highest derivatives
+        substituted, each by which equation, as what; ``r.variables`` still gives every name
+        (``"der(v)[0]"`` as an expression of ``p``, ``z``, ...).
 
     Returns
     -------
@@ -119,6 +135,7 @@ def reduce_index(
     >>> r.input_derivatives, r.u_names
     (['der(u)', 'der(u,2)'], ['u', 'der(u)', 'der(u,2)'])
     """
+    model = Model.require(model, "reduce_index")  # a LagrangianSystem: its .model()
     if method == "dummy_derivatives":
         from .dummy import dummy_derivatives
 
@@ -127,10 +144,46 @@ def reduce_index(
         raise ReductionError(
             f"unknown reduction method {method!r}: use 'differentiate' or 'dummy_derivatives'"
         )
+    if eliminate not in (True, False, "states"):
+        raise ReductionError(
+            f"reduce_index: eliminate={eliminate!r} is not an option: use True (the minimal "
+            "index-1 form), 'states' (eliminate only duplicated states such as p' = v) or "
+            "False (Pryce's scheme as it is)"
+        )
+    if not check:
+        ex, amendments = amended_expansion(model, seed=seed)
+        return _differentiate(ex, amendments, eliminate)
+    # The amendment machinery (left null vectors of Pryce's system Jacobian) only runs where
+    # that Jacobian is singular, i.e. where the index-1 check of the plain reduction fails
+    # (d alg / d z is the system Jacobian, or its Schur complement on the eliminated pivots)
+    ex = expand(model)
+    r = _differentiate(ex, [], eliminate)
+    try:
+        check_index1(r, seed=seed)
+        return r
+    except ReductionError:
+        pass
     ex, amendments = amended_expansion(model, seed=seed)
+    if amendments:
+        r = _differentiate(ex, amendments, eliminate)
+    try:
+        check_index1(r, seed=seed)
+        if amendments:
+            check_amendments(model, r, seed=seed)
+    except ReductionError:
+        if eliminate is True and r.info.get("substituted"):
+            # name every equation of the singular combination, including those whose
+            # highest derivatives were substituted: the message of the KKT form
+            reduce_index(model, seed=seed, eliminate="states")
+        raise
+    return r
+
+
+def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDAE:
+    """The ReducedDAE of Pryce's scheme on the expansion ``ex`` (eliminations made)."""
     n = ex.n
     c, d = ex.c, ex.d
-    el = find_eliminations(ex) if eliminate else Elimination()
+    el = find_eliminations(ex, highest=eliminate is True) if eliminate else Elimination()
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
@@ -150,15 +203,16 @@ def reduce_index(
     r.info["chains"] = chains
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
-    r.info["eliminated"] = [
-        {"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]}
+    # "eliminated": would-be states (their equations are no invariants: what
+    # analyze().definitions lists); "substituted": highest derivatives that would have been
+    # algebraic unknowns (their equations of offset 0 were never invariants)
+    done = [
+        ({"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]},
+         int(c[i]) == 0)
         for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
-    if check:
-        with numerics.single_thread():
-            check_index1(r, seed=seed)
-            if amendments:
-                check_amendments(model, r, seed=seed)
+    r.info["eliminated"] = [e for e, top in done if not top]
+    r.info["substituted"] = [e for e, top in done if top]
     return r
 
 
@@ -505,9 +559,24 @@ def _invariants(ex: Expansion, skip=()):
     return inv, names, chains
 
 
+def _element_names(var, k: int) -> list[str]:
+    """``["der(p)[0]", "der(p)[1]", ...]``: the names of ``var``'s order-``k`` elements."""
+    base = element_name(var.name, 1, 0, k)
+    return [base] if var.size == 1 else [f"{base}[{i}]" for i in range(var.size)]
+
+
 def _pair_names(ex: Expansion, pairs) -> list[str]:
     """Original names ``"der(p)[0]"`` of the pairs ``(j, k)``."""
-    return [ex.unknowns[j][0].element(ex.unknowns[j][1], k) for j, k in pairs]
+    cache: dict[tuple[int, int], list[str]] = {}
+    out = []
+    unknowns = ex.unknowns
+    for j, k in pairs:
+        var, i = unknowns[j]
+        key = (id(var), k)
+        if key not in cache:
+            cache[key] = _element_names(var, k)
+        out.append(cache[key][i])
+    return out
 
 
 def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
@@ -534,17 +603,23 @@ def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
     p = model.parameter_symbols
     p_names = [v.element(i) for v in model.parameters for i in range(v.size)]
     variables: dict[str, ca.SX] = {}
-    for j, (var, i) in enumerate(ex.unknowns):
-        for k in range(int(ex.d[j]) + 1):
-            variables[var.element(i, k)] = var.der(k)[i]
+    # whole vectors: one vertsplit per variable and order, names made in one comprehension
+    j0 = 0
+    for var in model.unknown_variables:
+        dj = ex.d[j0:j0 + var.size]
+        j0 += var.size
+        for k in range(int(dj.max()) + 1 if dj.size else 0):
+            elems = ca.vertsplit(var.der(k))
+            names = _element_names(var, k)
+            if bool(np.all(dj >= k)):
+                variables.update(zip(names, elems, strict=True))
+            else:
+                variables.update((names[i], elems[i]) for i in np.nonzero(dj >= k)[0])
     for var in model.controls:
         for k in range(ex.control_orders.get(var.name, 0) + 1):
-            s = var.der(k)
-            for i in range(var.size):
-                variables[var.element(i, k)] = s[i]
+            variables.update(zip(_element_names(var, k), ca.vertsplit(var.der(k)), strict=True))
     for var in model.parameters:
-        for i in range(var.size):
-            variables[var.element(i)] = var.sym[i]
+        variables.update(zip(_element_names(var, 0), ca.vertsplit(var.sym), strict=True))
     return ReducedDAE(
         t=model.t,
         x=x,
@@ -680,7 +755,8 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     regular at random points but singular wherever ``c = 0``. Nonsingular at one consistent
     point suffices. The message names the algebraic equations in the singular combination.
     """
-    if r.nz == 0:
+    if r.nz == 0:  # an ODE (alg has as many rows as z)
+        r.info["index1_check"] = "passed"
         return
     J = ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])

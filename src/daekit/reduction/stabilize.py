@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import ReductionError
 from ..reduced import ReducedDAE
+from .accept import as_reduced
 
 __all__ = ["BaumgarteStiffnessWarning", "baumgarte", "ggl", "time_scale"]
 
@@ -146,6 +147,7 @@ def baumgarte(
     >>> rb.info["baumgarte"]["coefficients"]["rod"]
     [1.0, 2.0]
     """
+    r = as_reduced(r, "baumgarte")  # a Model or LagrangianSystem: reduced (the one rule)
     if r.method == "dummy_derivatives":
         raise ReductionError(
             "baumgarte: a dummy-derivative system keeps every invariant among its algebraic "
@@ -210,6 +212,7 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     >>> rg.z_names[-1], rg.info["index"]
     ('mu(rod)', 2)
     """
+    r = as_reduced(r, "ggl")  # a Model or LagrangianSystem: reduced (the one rule)
     chains = r.info.get("chains") or []
     pos = [ch for ch in chains if len(ch["invariants"]) == 2]
     if r.method not in ("differentiate", "lagrangian") or not pos:

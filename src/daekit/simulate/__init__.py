@@ -6,6 +6,8 @@
 from .idas import simulate
 from .inputs import InputError
 from .projection import Projector
+from .storage import load_trajectory
 from .trajectory import NameNotFoundError, Trajectory
 
-__all__ = ["simulate", "Trajectory", "Projector", "InputError", "NameNotFoundError"]
+__all__ = ["simulate", "Trajectory", "Projector", "InputError", "NameNotFoundError",
+           "load_trajectory"]

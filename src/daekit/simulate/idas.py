@@ -21,6 +21,9 @@ import numpy as np
 
 from .._cio import c_output, failure_time
 from ..errors import SimulationError
+from ..reduced import ReducedDAE
+from ..reduction.accept import as_reduced
+from ..wording import count
 from .inputs import InputError, InputSignal, resolve_params
 from .projection import Projector
 from .trajectory import Trajectory
@@ -408,7 +411,7 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
     except (TypeError, ValueError):
         raise InputError(
             f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an "
-            f"array of the {r.nx} states; got {type(init).__name__}"
+            f"array of the {count(r.nx, 'state')}; got {type(init).__name__}"
         ) from None
     if arr.size == r.nx:
         x0 = arr
@@ -418,7 +421,7 @@ def _initial_state(r, init, t0, inputs, params, sig, pv, system) -> tuple[np.nda
         return arr[: r.nx], arr[r.nx:]
     raise InputError(
         f"simulate: init must be InitialValues (dk.initialize), a dict of guesses, or an array "
-        f"of the {r.nx} states; got {arr.size} numbers"
+        f"of the {count(r.nx, 'state')}; got {count(arr.size, 'number')}"
     )
 
 
@@ -441,7 +444,8 @@ def simulate(
     Parameters
     ----------
     r : ReducedDAE
-        From :func:`daekit.reduce_index` (or by hand).
+        From :func:`daekit.reduce_index` (or by hand). A Model or a LagrangianSystem is reduced
+        automatically (:func:`daekit.reduction.as_reduced`; ``traj.stats["reduced"]`` says how).
     t : array
         Output times, strictly increasing; ``t[0]`` is the initial time.
     init : InitialValues, dict or array
@@ -494,6 +498,10 @@ def simulate(
     True
     """
     wall0 = time.perf_counter()
+    notes: list[str] = []
+    if not isinstance(r, ReducedDAE) and not (method == "rattle" and hasattr(r, "index1")):
+        # a Model (or LagrangianSystem): reduced once with the default method, noted in stats
+        r = as_reduced(r, "simulate", stabilization=stabilization, method=method, notes=notes)
     if method == "rattle":
         from .rattle import simulate_rattle
 
@@ -502,10 +510,13 @@ def simulate(
                 f"simulate: method='rattle' keeps the constraints by construction and takes no "
                 f"stabilization (got {stabilization!r}); drop stabilization= or use method='idas'"
             )
-        return simulate_rattle(
+        traj = simulate_rattle(
             r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
             **options,
         )
+        if notes:
+            traj.stats["reduced"] = notes[0]
+        return traj
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
     if isinstance(stabilization, str) and stabilization.lower() == "none":
@@ -569,6 +580,8 @@ def simulate(
             bar.close()
     traj.stats["wall_time"] = time.perf_counter() - wall0
     traj.stats["stabilization"] = stabilization
+    if notes:
+        traj.stats["reduced"] = notes[0]
     return traj
 
 

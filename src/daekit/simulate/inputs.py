@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import DaekitError, ModelError
 from ..model import element_name, parse_name
+from ..wording import count
 
 __all__ = ["InputSignal", "InputError", "resolve_params"]
 
@@ -277,7 +278,8 @@ def resolve_params(r, params: Mapping | None) -> np.ndarray:
     elements ``"k[1]"``); unknown names raise :class:`InputError` listing the known ones."""
     pv = np.asarray(r.p_values, dtype=float).ravel().copy()
     if pv.size != r.n_p:
-        raise InputError(f"the system has {r.n_p} parameters but p_values has {pv.size}")
+        raise InputError(f"the system has {count(r.n_p, 'parameter')} but p_values has "
+                         f"{count(pv.size, 'value')}")
     if not params:
         return pv
     from .trajectory import NameNotFoundError, expand_name
@@ -292,7 +294,8 @@ def resolve_params(r, params: Mapping | None) -> np.ndarray:
         if arr.size == 1 and len(elems) > 1:
             arr = np.repeat(arr, len(elems))
         if arr.size != len(elems):
-            raise InputError(f"params: {key!r} has {len(elems)} element(s), got {arr.size} values")
+            raise InputError(f"params: {key!r} has {count(len(elems), 'element')}, got "
+                             f"{count(arr.size, 'value')}")
         if not np.all(np.isfinite(arr)):
             raise InputError(f"params: {key!r} is not finite ({val!r})")
         for e, v in zip(elems, arr, strict=False):

@@ -52,6 +52,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
+from ..wording import count
 
 __all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
 
@@ -120,7 +121,8 @@ class ConstrainedMechanics:
         pv = np.zeros(0) if self.p_values is None else np.asarray(self.p_values, float).ravel()
         if pv.size != self.p.numel():
             raise ModelError(
-                f"ConstrainedMechanics: {self.p.numel()} parameters but {pv.size} values in "
+                f"ConstrainedMechanics: {count(self.p.numel(), 'parameter')} but "
+                f"{count(pv.size, 'value')} in "
                 "p_values: give one value per parameter element"
             )
         self.p_values = pv
@@ -688,7 +690,7 @@ def _read_init(sysm: ConstrainedMechanics, init: Any) -> tuple[np.ndarray, np.nd
     arr = np.asarray(init, float).ravel()
     if arr.size != 2 * n:
         raise InitializationError(
-            f"RATTLE: init has {arr.size} numbers; give a dict of names or {2 * n} numbers "
+            f"RATTLE: init has {count(arr.size, 'number')}; give a dict of names or {2 * n} numbers "
             f"[{', '.join(sysm.q_names)}, {', '.join(sysm.v_names)}]"
         )
     return arr[:n], arr[n:]

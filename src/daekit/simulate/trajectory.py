@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ModelError
 from ..model import NameNotFoundError, expand_name
+from ..wording import count
 
 __all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
 
@@ -156,6 +157,14 @@ class Trajectory:
             cols[f"invariant:{n}"] = self.invariants[:, j]
         return pd.DataFrame(cols, index=pd.Index(self.t, name="t"))
 
+    def save(self, path) -> str:
+        """Write this trajectory to ``path``, ``.parquet`` (pyarrow) or ``.npz`` (NumPy), a
+        lossless documented format (:mod:`daekit.simulate.storage`); read it back with
+        :func:`daekit.load_trajectory`. Returns the path written."""
+        from .storage import save_trajectory
+
+        return save_trajectory(self, path)
+
     def plot(self, names: Iterable[str] | str | None = None, ax=None):
         """Plot the named variables over time (all states when ``names`` is None).
 
@@ -177,6 +186,7 @@ class Trajectory:
     def __repr__(self) -> str:
         span = f"t in [{self.t[0]:g}, {self.t[-1]:g}]" if self.t.size else "empty"
         return (
-            f"Trajectory({self.t.size} points, {span}; {', '.join(self.names[:8])}"
-            f"{', ...' if len(self.names) > 8 else ''}; {len(self.invariant_names)} invariants)"
+            f"Trajectory({count(self.t.size, 'point')}, {span}; {', '.join(self.names[:8])}"
+            f"{', ...' if len(self.names) > 8 else ''}; "
+            f"{count(len(self.invariant_names), 'invariant')})"
         )

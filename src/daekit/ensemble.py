@@ -1,0 +1,875 @@
+"""Ensembles and parameter sweeps: many simulations of one system, locally or on a Dask cluster.
+
+:func:`ensemble` runs ``initialize`` then ``simulate`` for every sample of a sweep or a Monte
+Carlo study. A sample is a dict of daekit names: a parameter name sets that parameter, a
+variable name (``"p[0]"``, ``"der(p)[1]"``) a fixed initial value. The system is reduced once
+(when a Model is given) and shipped to the workers once, as CasADi's own serialization of its
+expressions; every worker builds its integrator once and reuses it for all the samples it
+runs (parameters are integrator inputs, not rebuilt). A sample that fails (inconsistent
+initial values, an integrator failure) is recorded in :attr:`Ensemble.failures` and the sweep
+goes on.
+
+Where the samples run (``executor=``):
+
+- ``None``: local worker processes (:class:`concurrent.futures.ProcessPoolExecutor`, one per
+  core); the system is installed in every worker by its initializer.
+- ``"serial"``: in this process, one after the other.
+- a :class:`dask.distributed.Client`: the system is scattered to every worker once
+  (``client.scatter(..., broadcast=True)``); chunks of samples are submitted as tasks.
+- any :class:`concurrent.futures.Executor` (a thread pool, ``client.get_executor()``, an MPI
+  pool, ...): chunks of samples are submitted with the serialized system; each worker process
+  deserializes it once (a cache keyed by its digest).
+
+Callables in the options (``reduce=lambda traj: ...``, inputs given as Python functions) are
+shipped with ``cloudpickle`` when plain pickling cannot (it comes with Dask); without it, a
+``reduce`` that cannot be pickled runs here on the returned trajectories.
+
+Example: the period of a planar pendulum for three rod lengths, released at rest from 60
+degrees (the exact period is :func:`daekit.examples.exact.pendulum_planar_period`):
+
+>>> import numpy as np, daekit as dk
+>>> r = dk.reduce_index(dk.examples.pendulum_planar())
+>>> th = np.pi / 3
+>>> samples = [{"L": L, "x": L * np.sin(th), "y": -L * np.cos(th)} for L in (0.5, 1.0, 2.0)]
+>>> def half_period(traj):          # x changes sign at T/4 and 3T/4
+...     x, t = traj["x"], traj.t
+...     k = np.where(np.diff(np.sign(x)) != 0)[0][:2]
+...     tc = t[k] - x[k] * (t[k + 1] - t[k]) / (x[k + 1] - x[k])
+...     return {"period": 2 * (tc[1] - tc[0])}
+>>> ens = dk.ensemble(r, np.linspace(0, 3.5, 3501), samples, executor="serial",
+...                   fixed={"der(x)": 0.0}, reduce=half_period, rtol=1e-10, atol=1e-10)
+>>> len(ens), ens.failures
+(3, {})
+>>> exact = [dk.examples.exact.pendulum_planar_period(th, L=s["L"]) for s in samples]
+>>> bool(np.allclose([row["period"] for row in ens.summary()], exact, rtol=1e-4))
+True
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import pickle
+import sys
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import Executor, as_completed
+from typing import Any
+
+import numpy as np
+
+from .errors import DaekitError, ModelError
+from .sampling import sample
+
+__all__ = ["Ensemble", "ensemble", "ensemble_ocp", "sample"]
+
+KEEP = ("trajectory", "summary")
+
+
+# ----------------------------------------------------------------------------------------------
+# samples
+def _as_sample_list(samples) -> list[dict]:
+    """A list of dicts from a list of dicts or a dict of equal-length arrays."""
+    if isinstance(samples, Mapping):
+        if not samples:
+            raise ModelError("ensemble: samples is an empty dict; give e.g. {'L': [0.5, 1.0]}")
+        lengths = {}
+        for k, v in samples.items():
+            arr = np.asarray(v, dtype=float)
+            if arr.ndim == 0:
+                raise ModelError(
+                    f"ensemble: samples[{k!r}] is a single number; a dict of samples maps each "
+                    "name to one value per sample (an array), e.g. {'L': np.linspace(0.5, 2, 16)}"
+                )
+            lengths[k] = arr.shape[0]
+        if len(set(lengths.values())) != 1:
+            raise ModelError(
+                "ensemble: the arrays of a dict of samples must have equal lengths, got "
+                + ", ".join(f"{k}: {n}" for k, n in lengths.items())
+            )
+        n = next(iter(lengths.values()))
+        cols = {k: np.asarray(v, dtype=float) for k, v in samples.items()}
+        return [{k: _plain(cols[k][i]) for k in cols} for i in range(n)]
+    if isinstance(samples, (str, bytes)) or not isinstance(samples, Iterable):
+        raise ModelError(
+            f"ensemble: samples must be a list of dicts or a dict of arrays, got "
+            f"{type(samples).__name__}"
+        )
+    out = []
+    for i, s in enumerate(samples):
+        if not isinstance(s, Mapping):
+            raise ModelError(
+                f"ensemble: sample {i} is a {type(s).__name__}, not a dict of names and values "
+                "(e.g. {'L': 1.0, 'p[0]': 0.3})"
+            )
+        out.append(dict(s))
+    return out
+
+
+def _plain(v):
+    a = np.asarray(v, dtype=float)
+    return float(a) if a.ndim == 0 else a.tolist()
+
+
+def _split_keys(r, samples: list[dict]) -> tuple[set[str], set[str]]:
+    """(parameter keys, variable keys) used by the samples; unknown names raise ModelError."""
+    from .model import NameNotFoundError, expand_name
+
+    pmap = dict.fromkeys(r.p_names, 0)
+    params, variables = set(), set()
+    for i, s in enumerate(samples):
+        for k in s:
+            if k in params or k in variables:
+                continue
+            try:
+                expand_name(k, pmap)
+                params.add(k)
+                continue
+            except NameNotFoundError:
+                pass
+            try:
+                expand_name(k, r.variables)
+                variables.add(k)
+            except NameNotFoundError:
+                known = sorted({n.rsplit("[", 1)[0] for n in r.p_names})
+                raise ModelError(
+                    f"ensemble: sample {i} sets {k!r}, which is neither a parameter "
+                    f"({', '.join(known) or 'none'}) nor a variable of the model "
+                    f"({', '.join(_vector_names(r.variables)[:12])}, ...)"
+                ) from None
+    return params, variables
+
+
+def _vector_names(names) -> list[str]:
+    out: list[str] = []
+    for k in names:
+        v = k.rsplit("[", 1)[0] if k.endswith("]") else k
+        if v not in out:
+            out.append(v)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the result
+class Ensemble:
+    """The results of :func:`ensemble`: one entry per sample, in the order of the samples.
+
+    Attributes
+    ----------
+    samples : list of dict
+        The samples as given (names and values).
+    failures : dict of int to str
+        ``{sample index: message}`` of the samples that could not be initialized or
+        simulated: ``"sample 3 (L = 1, x = 1.5): "`` and the daekit error's message, which
+        names the culprit.
+    rows : list of dict
+        One row per sample (see :meth:`summary`).
+    t : numpy.ndarray
+        The output times shared by all trajectories.
+    stats : dict
+        ``wall_time`` (s, the whole sweep), ``executor`` (what ran it), ``workers``,
+        ``chunks`` (tasks), ``system_bytes`` and ``system_transfers`` (the size of the
+        serialized system and how often it was sent), ``notes`` (e.g. that the model was
+        reduced automatically).
+
+    ``len(ens)`` is the number of samples; ``ens[i]`` the :class:`~daekit.Trajectory` of sample
+    ``i`` (None when it failed); iterating gives the trajectories in order. With
+    ``keep="summary"`` the trajectories were not kept and indexing raises.
+    """
+
+    def __init__(self, samples, results, t, keep, stats, system=None) -> None:
+        self.samples = samples
+        self.t = np.asarray(t, dtype=float)
+        self.keep = keep
+        self.stats = stats
+        self.system = system
+        self._traj = [res.get("trajectory") for res in results]
+        self.rows = [res["row"] for res in results]
+        self.failures = {i: f"sample {i} ({_describe(samples[i])}): {res['error']}"
+                         for i, res in enumerate(results) if res.get("error")}
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, i: int):
+        if self.keep == "summary":
+            raise ModelError(
+                "this ensemble was run with keep='summary': the trajectories were not kept; "
+                "use ens.summary() / ens.to_pandas(), or run again with keep='trajectory'"
+            )
+        return self._traj[i]
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    @property
+    def succeeded(self) -> list[int]:
+        """Indices of the samples that succeeded."""
+        return [i for i in range(len(self)) if i not in self.failures]
+
+    def summary(self) -> list[dict]:
+        """One dict per sample: the sample's values, ``success``, ``error`` (message or ""),
+        ``max_invariant`` (max |invariant| over the trajectory and all invariants),
+        ``max|NAME|`` per invariant, ``steps``, ``wall_time`` and ``cpu_time`` (s,
+        initialize + simulate in the worker; the CPU time of the worker's process), and the
+        columns returned by the user's ``reduce(traj)``."""
+        return [dict(r) for r in self.rows]
+
+    def to_pandas(self):
+        """:meth:`summary` as a ``pandas.DataFrame`` indexed by sample number."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise ImportError(
+                "Ensemble.to_pandas needs pandas: pip install pandas (or use ens.summary())"
+            ) from None
+        df = pd.DataFrame(self.summary())
+        df.index.name = "sample"
+        return df
+
+    def save_summary(self, path: str | os.PathLike) -> str:
+        """Write :meth:`summary` to ``path``: ``.csv`` (no extra dependency) or ``.parquet``
+        (pandas and pyarrow). Returns the path written."""
+        path = os.fspath(path)
+        rows = self.summary()
+        if path.endswith(".parquet"):
+            df = self.to_pandas()
+            for c in df.columns:  # vector values: keep them as lists (Parquet list columns)
+                if df[c].map(lambda v: isinstance(v, (list, tuple))).any():
+                    df[c] = df[c].map(lambda v: list(v) if isinstance(v, (list, tuple)) else [v])
+            df.to_parquet(path)
+            return path
+        if not path.endswith(".csv"):
+            raise ModelError(f"save_summary: {path!r}: write a .csv or a .parquet file")
+        import csv
+
+        cols: list[str] = []
+        for r in rows:
+            cols += [k for k in r if k not in cols]
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["sample", *cols])
+            for i, r in enumerate(rows):
+                w.writerow([i, *[_csv_value(r.get(c, "")) for c in cols]])
+        return path
+
+    def values(self, name: str) -> np.ndarray:
+        """``(samples, N)`` (or ``(samples, N, size)``) array of ``name`` over the successful
+        trajectories (failed samples are NaN rows)."""
+        got = [tr[name] if tr is not None else None for tr in self]
+        shape = next((np.shape(g) for g in got if g is not None), None)
+        if shape is None:
+            raise ModelError(f"ensemble: no successful trajectory holds {name!r}")
+        return np.stack([np.asarray(g, float) if g is not None else np.full(shape, np.nan)
+                         for g in got])
+
+    def percentiles(self, name: str, q: Sequence[float] = (5, 50, 95)) -> np.ndarray:
+        """Percentiles ``q`` of ``name`` across the successful samples at every time:
+        an array ``(len(q), N[, size])``."""
+        return np.nanpercentile(self.values(name), q, axis=0)
+
+    def plot(self, name: str, bands: Sequence[tuple[float, float]] = ((5, 95), (25, 75)),
+             ax=None, faint: bool = True, color: str = "C0", max_lines: int = 400):
+        """All trajectories of ``name`` faint, with percentile bands and the median.
+
+        ``bands``: pairs of percentiles shaded (darker for inner ones). A vector name gives one
+        panel per element. Returns the matplotlib Figure.
+        """
+        import matplotlib.pyplot as plt
+
+        V = self.values(name)
+        if V.ndim == 2:
+            V = V[:, :, None]
+        k = V.shape[2]
+        if ax is None:
+            fig, axes = plt.subplots(k, 1, figsize=(7.5, 2.6 * k + 0.6), sharex=True,
+                                     squeeze=False)
+            axes = axes[:, 0]
+        else:
+            axes = np.atleast_1d(ax)
+            fig = axes[0].figure
+        ok = ~np.isnan(V[:, 0, 0])
+        for j in range(k):
+            a = axes[j]
+            Vj = V[ok, :, j]
+            if faint:
+                for row in Vj[:max_lines]:
+                    a.plot(self.t, row, color="0.4", lw=0.5, alpha=min(0.6, 8.0 / max(len(Vj), 1)))
+            for b, (lo, hi) in enumerate(sorted(bands, key=lambda p: p[1] - p[0], reverse=True)):
+                plo, phi = np.percentile(Vj, [lo, hi], axis=0)
+                a.fill_between(self.t, plo, phi, color=color, alpha=0.18 + 0.17 * b, lw=0,
+                               label=f"{lo:g}-{hi:g} %")
+            a.plot(self.t, np.median(Vj, axis=0), color=color, lw=1.6, label="median")
+            label = name if k == 1 else f"{name}[{j}]"
+            a.set_ylabel(label)
+            a.grid(alpha=0.3)
+        axes[0].legend(loc="upper right", fontsize=8, framealpha=0.8)
+        axes[0].set_title(f"{name}: {int(ok.sum())} of {len(self)} samples"
+                          + (f" ({len(self.failures)} failed)" if self.failures else ""))
+        axes[-1].set_xlabel("t [s]")
+        fig.tight_layout()
+        return fig
+
+    def __repr__(self) -> str:
+        return (f"Ensemble({len(self)} samples, {len(self.failures)} failed, "
+                f"{self.stats.get('executor', '?')}, {self.stats.get('wall_time', 0.0):.3g} s)")
+
+
+def _describe(s: Mapping) -> str:
+    def one(v):
+        a = np.asarray(v, dtype=float).ravel()
+        return f"{a[0]:g}" if a.size == 1 else "[" + ", ".join(f"{x:g}" for x in a) + "]"
+
+    return ", ".join(f"{k} = {one(v)}" for k, v in s.items()) or "defaults"
+
+
+def _csv_value(v):
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, (list, tuple)):
+        return " ".join(repr(float(x)) for x in v)
+    return v
+
+
+# ----------------------------------------------------------------------------------------------
+# workers
+_SYSTEMS: dict[str, Any] = {}  # digest -> ReducedDAE, in each worker process
+
+
+def _dumps(obj) -> bytes:
+    """pickle, or cloudpickle for lambdas and local functions (raises when neither can)."""
+    try:
+        return pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        import cloudpickle  # comes with dask; ImportError when absent
+
+        return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _pack_system(r, inputs) -> bytes:
+    """The system and the inputs in one CasADi serialization: input expressions of ``r.t``
+    (or of the model's ``m.t``) keep their symbols shared with the system."""
+    import casadi as ca
+
+    with ca.global_pickle_context():
+        return _dumps((r, inputs))
+
+
+def _install(key: str, blob: bytes) -> None:
+    """Worker initializer: deserialize the system (and the inputs) once."""
+    import casadi as ca
+
+    if key not in _SYSTEMS:
+        if len(_SYSTEMS) >= 4:
+            _SYSTEMS.pop(next(iter(_SYSTEMS)))
+        with ca.global_unpickle_context():
+            _SYSTEMS[key] = pickle.loads(blob)  # noqa: S301 - our own serialization
+
+
+def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, dict]]:
+    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``."""
+    if key not in _SYSTEMS:
+        if blob is None:
+            raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
+        _install(key, blob)
+    r, inputs = _SYSTEMS[key]
+    job = pickle.loads(payload)  # noqa: S301 - our own serialization
+    job["inputs"] = inputs
+    return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+
+
+def _run_one(r, s: dict, job: dict) -> dict:
+    """initialize + simulate one sample; errors are recorded, never raised."""
+    from .initialize import initialize
+    from .simulate import simulate
+
+    params = dict(job["params_base"])
+    fixed = dict(job["fixed"] or {})
+    for k, v in s.items():
+        if k in job["param_keys"]:
+            params[k] = v
+        else:
+            fixed[k] = v
+    row: dict[str, Any] = dict(s)
+    w0, c0 = time.perf_counter(), time.process_time()
+    out: dict[str, Any] = {"row": row, "error": ""}
+    try:
+        init = initialize(r, t0=float(job["t"][0]), guess=job["guess"], fixed=fixed,
+                          params=params or None, inputs=job["inputs"])
+        traj = simulate(r, job["t"], init, params=params or None, inputs=job["inputs"],
+                        progress=False, **job["options"])
+    except Exception as exc:  # noqa: BLE001 - one failing sample must not stop the sweep
+        what = "" if isinstance(exc, DaekitError) else f"{type(exc).__name__}: "
+        out["error"] = what + str(exc)
+        row.update(success=False, error=out["error"], max_invariant=math.nan, steps=0,
+                   wall_time=time.perf_counter() - w0, cpu_time=time.process_time() - c0)
+        return out
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    maxinv = traj.max_invariant()
+    row.update(success=True, error="",
+               max_invariant=max(maxinv.values()) if maxinv else 0.0)
+    for k, v in maxinv.items():
+        row[f"max|{k}|"] = v
+    row.update(steps=int(traj.stats.get("steps", 0) or 0), wall_time=wall, cpu_time=cpu)
+    red = job["reduce"]
+    if red is not None:
+        try:
+            extra = red(traj)
+            if not isinstance(extra, Mapping):
+                raise TypeError(f"reduce must return a dict of columns, got {type(extra).__name__}")
+            row.update({str(k): _plain_value(v) for k, v in extra.items()})
+        except Exception as exc:  # noqa: BLE001 - recorded like a failure
+            out["error"] = f"reduce(traj) raised {type(exc).__name__}: {exc}"
+            row.update(success=False, error=out["error"])
+    if job["keep"] == "trajectory":
+        out["trajectory"] = traj
+    return out
+
+
+def _plain_value(v):
+    if isinstance(v, (np.generic, np.ndarray)):
+        a = np.asarray(v)
+        return a.item() if a.ndim == 0 else a.tolist()
+    return v
+
+
+# ----------------------------------------------------------------------------------------------
+# progress over samples (a terminal only)
+class _SampleProgress:
+    """A one-line bar over samples on stderr, drawn only when stderr is a terminal."""
+
+    def __init__(self, enabled: bool, total: int, label: str = "ensemble") -> None:
+        stream = sys.stderr
+        self.enabled = bool(enabled) and total > 0 and hasattr(stream, "isatty") and stream.isatty()
+        self.total, self.done, self.failed, self.label = total, 0, 0, label
+        self.t0 = time.perf_counter()
+
+    def update(self, done: int, failed: int) -> None:
+        self.done, self.failed = done, failed
+        if not self.enabled:
+            return
+        frac = done / self.total
+        bar = "#" * int(25 * frac)
+        el = time.perf_counter() - self.t0
+        eta = el / frac - el if frac > 0 else float("nan")
+        sys.stderr.write(f"\r{self.label} [{bar:<25}] {done}/{self.total} samples"
+                         f"{f', {failed} failed' if failed else ''}  {el:.1f} s"
+                         f"{f' (about {eta:.0f} s left)' if 0 < frac < 1 else ''}   ")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+# ----------------------------------------------------------------------------------------------
+# the sweep
+def _is_dask_client(ex) -> bool:
+    mod = type(ex).__module__ or ""
+    return mod.startswith("distributed") and type(ex).__name__ == "Client"
+
+
+def _workers_of(ex) -> int:
+    if _is_dask_client(ex):
+        try:
+            info = ex.scheduler_info()["workers"]
+            return max(1, sum(int(w.get("nthreads", 1)) for w in info.values()))
+        except Exception:  # noqa: BLE001
+            return os.cpu_count() or 1
+    return int(getattr(ex, "_max_workers", 0) or os.cpu_count() or 1)
+
+
+def _chunks(items: list, n_chunks: int) -> list[list]:
+    n_chunks = max(1, min(n_chunks, len(items)))
+    size = math.ceil(len(items) / n_chunks)
+    return [items[k:k + size] for k in range(0, len(items), size)]
+
+
+def ensemble(
+    system,
+    t,
+    samples,
+    *,
+    executor: Executor | str | None = None,
+    fixed: Mapping | None = None,
+    guess: Mapping | None = None,
+    progress: bool = True,
+    keep: str = "trajectory",
+    reduce: Callable | None = None,
+    params: Mapping | None = None,
+    inputs: Mapping | None = None,
+    chunksize: int | None = None,
+    **simulate_options,
+) -> Ensemble:
+    """Initialize and simulate ``system`` once per sample; failures are recorded, not raised.
+
+    Parameters
+    ----------
+    system : ReducedDAE, Model or LagrangianSystem
+        A Model (or LagrangianSystem) is reduced once here with the default method (noted in
+        ``ens.stats["notes"]``); with ``stabilization="dummy_derivatives"`` by dummy
+        derivatives.
+    t : array
+        Output times, shared by all samples.
+    samples : list of dict, or dict of equal-length arrays
+        Keys are daekit names: a parameter (``"L"``) sets that parameter, a variable
+        (``"p[0]"``, ``"der(p)"``) a fixed initial value, merged over ``fixed``.
+    executor : None, "serial", a concurrent.futures.Executor, or a dask.distributed.Client
+        Where the samples run (see the module docstring). None: local processes, one per core.
+    fixed, guess : dict, optional
+        Fixed initial values and guesses shared by all samples (as for
+        :func:`daekit.initialize`).
+    progress : bool
+        A bar over samples on stderr, drawn only on a terminal.
+    keep : "trajectory" or "summary"
+        ``"summary"`` drops the trajectories in the workers (bounded memory): only
+        :meth:`Ensemble.summary` rows come back.
+    reduce : callable, optional
+        ``reduce(traj) -> dict`` of extra summary columns, run in the worker.
+    params, inputs : dict, optional
+        Parameter values and inputs shared by all samples (as for :func:`daekit.simulate`).
+    chunksize : int, optional
+        Samples per task (default: about four tasks per worker).
+    **simulate_options
+        Passed to :func:`daekit.simulate` (``stabilization``, ``rtol``, ``atol``, ...).
+
+    Returns
+    -------
+    Ensemble
+
+    Example
+    -------
+    >>> import numpy as np, daekit as dk
+    >>> r = dk.reduce_index(dk.examples.pendulum_planar())
+    >>> ens = dk.ensemble(r, np.linspace(0, 1, 101), {"L": [1.0, 2.0], "x": [0.6, 3.0]},
+    ...                   executor="serial", guess={"y": -1.0}, fixed={"der(x)": 0.0})
+    >>> ens[0] is not None, ens[1] is None, sorted(ens.failures)
+    (True, True, [1])
+    >>> "rod" in ens.failures[1]
+    True
+    """
+    from .reduced import ReducedDAE
+
+    wall0 = time.perf_counter()
+    if keep not in KEEP:
+        raise ModelError(f"ensemble: keep must be 'trajectory' or 'summary', got {keep!r}")
+    if reduce is not None and not callable(reduce):
+        raise ModelError("ensemble: reduce must be a function traj -> dict of summary columns")
+    notes: list[str] = []
+    r = system
+    if not isinstance(r, ReducedDAE):
+        from .reduction import as_reduced
+
+        r = as_reduced(system, "ensemble", stabilization=simulate_options.get("stabilization"),
+                       method=simulate_options.get("method", "idas"), notes=notes)
+    tg = np.asarray(t, dtype=float).ravel()
+    if tg.size < 2 or not np.all(np.isfinite(tg)) or np.any(np.diff(tg) <= 0):
+        raise ModelError("ensemble: t must hold at least two finite, strictly increasing times")
+    samp = _as_sample_list(samples)
+    if not samp:
+        raise ModelError("ensemble: no samples")
+    for what, val in (("fixed", fixed), ("guess", guess), ("params", params)):
+        if val is not None and not isinstance(val, Mapping):
+            raise ModelError(f"ensemble: {what} must be a dict of names and values")
+    _check_simulate_options(simulate_options)
+    param_keys, _ = _split_keys(r, samp)
+    if fixed:
+        _split_keys(r, [dict(fixed)])
+    job = {
+        "t": tg, "fixed": dict(fixed or {}), "guess": dict(guess) if guess else None,
+        "params_base": dict(params or {}), "inputs": inputs, "options": simulate_options,
+        "keep": keep, "reduce": reduce, "param_keys": param_keys,
+    }
+    indexed = list(enumerate(samp))
+    bar = _SampleProgress(progress, len(samp))
+    results: list[dict | None] = [None] * len(samp)
+    failed = 0
+
+    def take(pairs):
+        nonlocal failed
+        for i, res in pairs:
+            results[i] = res
+            failed += bool(res.get("error"))
+
+    stats: dict[str, Any] = {"notes": notes}
+    local_reduce = None
+    if isinstance(executor, str) and executor != "serial":
+        raise ModelError(
+            f"ensemble: executor={executor!r}; use None (local processes), 'serial', a "
+            "concurrent.futures.Executor or a dask.distributed.Client"
+        )
+    if executor == "serial":
+        stats.update(executor="serial", workers=1, chunks=len(samp))
+        for done, (i, s) in enumerate(indexed, 1):
+            take([(i, _run_one(r, s, job))])
+            bar.update(done, failed)
+    else:
+        try:
+            blob = _pack_system(r, inputs)
+        except Exception:  # noqa: BLE001
+            raise ModelError(
+                "ensemble: the inputs cannot be sent to worker processes (a local Python "
+                "function without cloudpickle installed?); give them as CasADi expressions of "
+                "time, install cloudpickle, or use executor='serial'"
+            ) from None
+        try:
+            payload_job = dict(job, inputs=None)
+            _dumps(payload_job)
+        except Exception:  # noqa: BLE001 - reduce cannot be shipped: run it here
+            if reduce is None:
+                raise ModelError(
+                    "ensemble: the simulate options cannot be sent to worker processes; install "
+                    "cloudpickle, or use executor='serial'"
+                ) from None
+            local_reduce = reduce
+            payload_job = dict(job, inputs=None, reduce=None, keep="trajectory")
+            try:
+                _dumps(payload_job)
+            except Exception:  # noqa: BLE001
+                raise ModelError(
+                    "ensemble: the options cannot be sent to worker processes; install "
+                    "cloudpickle, or use executor='serial'"
+                ) from None
+        key = hashlib.sha1(blob).hexdigest()
+        stats["system_bytes"] = len(blob)
+        own = None
+        ex = executor
+        if ex is None:
+            from concurrent.futures import ProcessPoolExecutor
+
+            n_workers = max(1, min(_cpu_count(), len(samp)))
+            own = ex = ProcessPoolExecutor(n_workers, initializer=_install, initargs=(key, blob))
+            stats.update(executor="processes", workers=n_workers)
+        elif _is_dask_client(ex):
+            stats.update(executor=f"dask ({getattr(ex.scheduler, 'address', '?')})",
+                         workers=_workers_of(ex))
+        elif isinstance(ex, Executor):
+            stats.update(executor=type(ex).__name__, workers=_workers_of(ex))
+        else:
+            raise ModelError(
+                f"ensemble: executor must be None, 'serial', a concurrent.futures.Executor or a "
+                f"dask.distributed.Client, got {type(executor).__name__}"
+            )
+        per = chunksize or max(1, math.ceil(len(samp) / (4 * stats["workers"])))
+        chunks = _chunks(indexed, math.ceil(len(samp) / per))
+        stats["chunks"] = len(chunks)
+        # how many times the serialized system travels: once per worker process (initializer
+        # or scatter); with a foreign executor once per chunk (deserialized once per process)
+        stats["system_transfers"] = (stats["workers"] if own is not None or _is_dask_client(ex)
+                                     else len(chunks))
+        try:
+            if _is_dask_client(ex):
+                from distributed import as_completed as dask_completed
+
+                blob_f = ex.scatter(blob, broadcast=True, hash=False)
+                futs = [ex.submit(_run_chunk, key, blob_f, _dumps(dict(payload_job, samples=c)),
+                                  pure=False) for c in chunks]
+                done_iter = dask_completed(futs)
+            else:
+                ship = None if own is not None else blob
+                futs = [ex.submit(_run_chunk, key, ship, _dumps(dict(payload_job, samples=c)))
+                        for c in chunks]
+                done_iter = as_completed(futs)
+            n_done = 0
+            for f in done_iter:
+                pairs = f.result()
+                take(pairs)
+                n_done += len(pairs)
+                bar.update(n_done, failed)
+        finally:
+            if own is not None:
+                own.shutdown(wait=True)
+        if local_reduce is not None:
+            for res in results:
+                if res is not None and not res.get("error"):
+                    _apply_reduce(res, local_reduce, keep)
+    bar.close()
+    stats["wall_time"] = time.perf_counter() - wall0
+    return Ensemble(samp, results, tg, keep, stats, r)
+
+
+def _check_simulate_options(opts: Mapping) -> None:
+    """The options every sample shares, checked once here (not failing every sample)."""
+    from .simulate.idas import STABILIZATIONS
+
+    stab = opts.get("stabilization")
+    if isinstance(stab, str) and stab.lower() == "none":
+        stab = None
+    if stab not in STABILIZATIONS:
+        raise ModelError(f"ensemble: unknown stabilization {stab!r}; use "
+                         + ", ".join(repr(s) for s in STABILIZATIONS))
+    if opts.get("method", "idas") not in ("idas", "rattle"):
+        raise ModelError(f"ensemble: unknown method {opts['method']!r}; use 'idas' or 'rattle'")
+    for name in ("rtol", "atol"):
+        v = opts.get(name, 1e-8)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and v > 0):
+            raise ModelError(f"ensemble: {name} must be a positive number, got {v!r}")
+
+
+def _apply_reduce(res: dict, reduce: Callable, keep: str) -> None:
+    traj = res.get("trajectory")
+    try:
+        extra = reduce(traj)
+        res["row"].update({str(k): _plain_value(v) for k, v in dict(extra).items()})
+    except Exception as exc:  # noqa: BLE001
+        res["error"] = f"reduce(traj) raised {type(exc).__name__}: {exc}"
+        res["row"].update(success=False, error=res["error"])
+    if keep == "summary":
+        res.pop("trajectory", None)
+
+
+def _cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+# ----------------------------------------------------------------------------------------------
+# optimal control
+def ensemble_ocp(
+    problem,
+    samples,
+    *,
+    warm_start: bool = True,
+    progress: bool = True,
+    reduce: Callable | None = None,
+    keep: str = "solution",
+    **solve_options,
+) -> Ensemble:
+    """Solve a family of optimal control problems, each warm-started from its nearest solved
+    neighbour.
+
+    Parameters
+    ----------
+    problem : daekit.OCP or callable
+        An OCP whose parameters the samples set (``ocp.set_parameters(sample)``), or a
+        factory ``problem(**sample) -> OCP`` for anything else (targets, horizons, bounds).
+    samples : list of dict or dict of arrays
+        As for :func:`ensemble`.
+    warm_start : bool
+        Solve the samples along a nearest-neighbour path (in the sample values scaled to
+        their ranges) and start each solve from the solution of the nearest sample already
+        solved (``ocp.solve(guess=that_solution)``); ``False`` solves each from the default
+        guess. Solves run in this process, one after the other.
+    reduce : callable, optional
+        ``reduce(solution) -> dict`` of extra summary columns.
+    keep : "solution" or "summary"
+        Keep the :class:`~daekit.OCPSolution` objects (``ens[i]``) or only the summary rows.
+    **solve_options
+        Passed to ``ocp.solve`` (``redundancy=``, ``check=``).
+
+    Returns
+    -------
+    Ensemble
+        ``ens[i]`` the OCPSolution of sample ``i`` (None when it failed); summary rows with
+        ``success``, ``objective``, ``iterations``, ``warm_from`` (the sample it started
+        from, -1 for none), ``wall_time`` and the ``reduce`` columns. A solve that does not
+        succeed is listed in ``failures`` with its status.
+
+    Example
+    -------
+    >>> import daekit as dk
+    >>> m = dk.Model("cart"); s = m.state("s"); u = m.control("u")
+    >>> _ = m.equation(m.der(s, 2) - u, name="newton")
+    >>> def problem(target):
+    ...     ocp = dk.OCP(m, t_final=1.0, intervals=10, controls="polynomial")
+    ...     ocp.minimize(integral=u**2)
+    ...     return ocp.initial({"s": 0, "der(s)": 0}).final({"s": target, "der(s)": 0})
+    >>> ens = dk.ensemble_ocp(problem, {"target": [1.0, 2.0, 1.5]})
+    >>> [round(row["objective"], 6) for row in ens.summary()]   # 12 target^2
+    [12.0, 48.0, 27.0]
+    >>> [row["warm_from"] for row in ens.summary()]
+    [-1, 2, 0]
+    """
+    wall0 = time.perf_counter()
+    if keep not in ("solution", "summary"):
+        raise ModelError(f"ensemble_ocp: keep must be 'solution' or 'summary', got {keep!r}")
+    samp = _as_sample_list(samples)
+    if not samp:
+        raise ModelError("ensemble_ocp: no samples")
+    is_factory = callable(problem) and not hasattr(problem, "solve")
+    if not is_factory and not hasattr(problem, "set_parameters"):
+        raise ModelError("ensemble_ocp: problem must be a daekit.OCP or a factory "
+                         "problem(**sample) -> OCP")
+    keys = sorted({k for s in samp for k in s})
+    X = np.array([[_scalar(s.get(k, np.nan)) for k in keys] for s in samp], dtype=float)
+    span = np.nanmax(X, axis=0) - np.nanmin(X, axis=0) if X.size else np.zeros(0)
+    Xs = np.nan_to_num((X - np.nanmin(X, axis=0)) / np.where(span > 0, span, 1.0))
+    order = _nearest_path(Xs) if warm_start else list(range(len(samp)))
+    results: list[dict | None] = [None] * len(samp)
+    solved: list[int] = []
+    bar = _SampleProgress(progress, len(samp), "ocp sweep")
+    failed = 0
+    for done, i in enumerate(order, 1):
+        s = samp[i]
+        row: dict[str, Any] = dict(s)
+        w0 = time.perf_counter()
+        src = -1
+        if warm_start and solved:
+            d = np.linalg.norm(Xs[solved] - Xs[i], axis=1)
+            src = solved[int(np.argmin(d))]
+        res: dict[str, Any] = {"row": row, "error": ""}
+        try:
+            ocp = problem(**s) if is_factory else problem.set_parameters(s)
+            guess = results[src].get("solution_") if src >= 0 else None
+            sol = ocp.solve(guess=guess, **solve_options)
+            ok = bool(sol.success)
+            status = str(getattr(sol, "status", "") or sol.stats.get("return_status", "?"))
+            row.update(success=ok, error="" if ok else f"solver status {status}",
+                       objective=float(sol.objective), status=status,
+                       iterations=int(sol.stats.get("iter_count", 0) or 0))
+            if not ok:
+                res["error"] = row["error"] + (": " + sol.report if getattr(sol, "report", "") else "")
+            if reduce is not None:
+                row.update({str(k): _plain_value(v) for k, v in dict(reduce(sol)).items()})
+            res["solution_"] = sol
+            if ok:
+                solved.append(i)
+        except Exception as exc:  # noqa: BLE001 - recorded, the sweep goes on
+            what = "" if isinstance(exc, DaekitError) else f"{type(exc).__name__}: "
+            res["error"] = what + str(exc)
+            row.update(success=False, error=res["error"], objective=math.nan, iterations=0)
+        row.update(warm_from=src, wall_time=time.perf_counter() - w0)
+        results[i] = res
+        failed += bool(res["error"])
+        bar.update(done, failed)
+    bar.close()
+    for res in results:
+        sol = res.pop("solution_", None)
+        if keep == "solution":
+            res["trajectory"] = sol
+    stats = {"executor": "serial", "workers": 1, "chunks": len(samp), "notes": [],
+             "warm_start": warm_start, "order": order, "wall_time": time.perf_counter() - wall0}
+    return Ensemble(samp, results, np.zeros(2), "trajectory" if keep == "solution" else "summary",
+                    stats)
+
+
+def _scalar(v) -> float:
+    a = np.asarray(v, dtype=float).ravel()
+    return float(a[0]) if a.size == 1 else float(np.linalg.norm(a))
+
+
+def _nearest_path(X: np.ndarray) -> list[int]:
+    """A greedy path through the points: start at the first sample, then repeatedly the
+    nearest unvisited point to any visited one (Prim's order), so each solve has a close
+    solved neighbour."""
+    n = X.shape[0]
+    if n == 0:
+        return []
+    visited = [0]
+    best = np.linalg.norm(X - X[0], axis=1) if X.shape[1] else np.zeros(n)
+    best[0] = np.inf
+    left = set(range(1, n))
+    while left:
+        j = min(left, key=lambda k: (best[k], k))
+        visited.append(j)
+        left.discard(j)
+        if X.shape[1]:
+            best = np.minimum(best, np.linalg.norm(X - X[j], axis=1))
+        best[visited] = np.inf
+    return visited

@@ -343,6 +343,21 @@ def initialize(
         if nm in direct:
             w0[direct[nm]] = v
     use_sparse = n >= _SPARSE_MIN_UNKNOWNS
+    # units do not matter (small systems): rows and unknowns scaled by the equilibration of
+    # the Jacobian at the start, h_s(ws) = dr h(dc ws) (daekit.numerics.equilibrate)
+    dc_w = np.ones(n)
+    if not use_sparse and n:
+        dr_h, dc_w = _start_scaling(hfun, w0)
+        ws = ca.SX.sym("ws", n)
+        w_of_ws = ca.DM(dc_w) * ws
+        alg = ca.DM(dr_h[:n_alg]) * ca.substitute(alg, w, w_of_ws) if n_alg else alg
+        h = ca.DM(dr_h) * ca.substitute(h, w, w_of_ws) if h.numel() else h
+        G = ca.substitute(G, w, w_of_ws) if G.numel() else G
+        w = ws
+        hfun = ca.Function("h", [w], [h, ca.jacobian(h, w)])
+        gfun = ca.Function("g", [w], [G, ca.jacobian(G, w)])
+        fix_val = fix_val * dr_h[n_alg + n_inv:]
+        w0 = w0 / dc_w
     J_pattern = _ccs(hfun.sparsity_out(1))
     JG_pattern = _ccs(gfun.sparsity_out(1))
     # z is a function of x wherever d alg / d z is nonsingular (index 1): after every step it
@@ -483,6 +498,7 @@ def initialize(
 
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
+    wv = wv * dc_w  # back to the model's units
     position = {ca.SX(r.x[i]).element_hash(): i for i in range(nx)}
     position.update({ca.SX(r.z[i]).element_hash(): nx + i for i in range(nz)})
     for _, e, v in fixed_items:
@@ -503,6 +519,18 @@ def initialize(
         t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
         list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
     )
+
+
+def _start_scaling(hfun, w0) -> tuple[np.ndarray, np.ndarray]:
+    """Row and unknown factors (powers of two) from the equilibrated Jacobian at ``w0``
+    (all ones where it is not finite)."""
+    from .numerics import equilibrate, to_scipy
+
+    _, J = hfun(w0)
+    A = to_scipy(J)
+    if A.nnz and not np.all(np.isfinite(A.data)):
+        return np.ones(A.shape[0]), np.ones(A.shape[1])
+    return equilibrate(A)
 
 
 def _qp_min_norm(A, h, H, g) -> np.ndarray:

@@ -345,9 +345,12 @@ def initialize(
     use_sparse = n >= _SPARSE_MIN_UNKNOWNS
     # units do not matter (small systems): rows and unknowns scaled by the equilibration of
     # the Jacobian at the start, h_s(ws) = dr h(dc ws) (daekit.numerics.equilibrate)
-    dc_w = np.ones(n)
+    dc_w, dr_h = np.ones(n), None
     if not use_sparse and n:
         dr_h, dc_w = _start_scaling(hfun, w0)
+        if _spread(dr_h) <= _SCALE_SPREAD and _spread(dc_w) <= _SCALE_SPREAD:
+            dr_h, dc_w = None, np.ones(n)  # well scaled already: iterate as it is
+    if dr_h is not None:
         ws = ca.SX.sym("ws", n)
         w_of_ws = ca.DM(dc_w) * ws
         alg = ca.DM(dr_h[:n_alg]) * ca.substitute(alg, w, w_of_ws) if n_alg else alg
@@ -481,7 +484,11 @@ def initialize(
             wv, hv, J, converged, it = second
     res = float(np.max(np.abs(hv), initial=0.0))
     if not converged and res > 1e-8 * scale:
-        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it)
+        # report in the model's units (the same numbers on the dense and the sparse path)
+        hv_u = hv / dr_h if dr_h is not None else hv
+        J_u = (J / dr_h[:, None] / dc_w[None, :]) if dr_h is not None else J
+        _raise_conflict(hv_u, J_u, row_names, n_alg, n_inv, fixed_items,
+                        float(np.max(np.abs(hv_u), initial=0.0)), it)
 
     found = None
     if use_sparse:
@@ -508,6 +515,8 @@ def initialize(
 
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = _evaluate_variables(r, t0, x0, z0, u0, pv)
+    if dr_h is not None:
+        hv = hv / dr_h
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
     # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
     # order; the free values are those of it that were not fixed (also under another name)
@@ -519,6 +528,15 @@ def initialize(
         t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
         list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
     )
+
+
+#: Equilibration factors spread over more than this (max / min) mean a badly scaled system
+#: (units): then Gauss--Newton runs on the scaled one.
+_SCALE_SPREAD = 2.0**10
+
+
+def _spread(f: np.ndarray) -> float:
+    return float(f.max() / f.min()) if f.size else 1.0
 
 
 def _start_scaling(hfun, w0) -> tuple[np.ndarray, np.ndarray]:

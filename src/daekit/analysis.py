@@ -502,7 +502,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         levels.append(level)
         arr = ca.vertcat(*levels)
         jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
-        tgt = np.array(target)
+        tgt = np.array(target, dtype=bool)
         r_all = r_rest = r_full = -1
         at_random = pt.sparse(jac_sym) if k == 0 or pt.status is None else None
         if at_random is None:

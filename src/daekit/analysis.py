@@ -867,7 +867,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 
 #: Largest connected part (unknowns) whose structural index is checked against the derivative
 #: array when structural analysis succeeds (the structural index is only an upper bound).
-CONFIRM_LIMIT = 60
+CONFIRM_LIMIT = 20
 
 
 def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor: int):

@@ -1013,6 +1013,14 @@ def _explain(a: Analysis) -> str:
         )
     else:
         lines.extend(_explain_failure(a))
+    if a.index_confirmed:
+        for eqs, nu, found in a.index_confirmed[1]:
+            lines.append(
+                f"The structural index {nu} of the equations {_short(eqs, 6)} is only an upper "
+                f"bound: their derivative array (at consistent points) determines every "
+                f"derivative after {found} differentiation(s), so the differential index is "
+                f"{a.index}.")
+    lines.append(f"(The numeric tests were evaluated {a.test_points}.)")
     lines.append("")
     e = a.easy
     if e.passed:

@@ -34,7 +34,7 @@ import pytest
 
 import daekit as dk
 
-FAST_CASES = 12
+FAST_CASES = 8
 #: Rates the generated cases must reach (measured: see the issue note; the remaining
 #: failures are analysed there). A regression below them fails the test.
 MIN_ANALYSIS_OK = 0.85
@@ -272,8 +272,8 @@ def _assert_rates(counts, n, failures):
 
 
 def test_equivalent_models_fast():
-    counts, failures, sizes, indices = run(FAST_CASES, simulate_every=4)
-    assert set(indices) >= {1, 3, 5}
+    counts, failures, sizes, indices = run(FAST_CASES, simulate_every=8)
+    assert set(indices) >= {3, 4, 5}
     assert min(sizes) >= 2 and max(sizes) <= 60
     _assert_rates(counts, FAST_CASES, failures)
 

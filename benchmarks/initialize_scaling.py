@@ -1,7 +1,7 @@
 """Consistent initialization of a planar chain of N links: dense path against sparse path.
 
 The model is :func:`daekit.examples.planar_chain` (index 3) reduced to index 1 by
-:func:`daekit.reduce_index` (4N states, 3N algebraic unknowns, 2N invariants). Two cases:
+:func:`daekit.reduce_index` (4N states, N algebraic unknowns, 2N invariants). Two cases:
 
 - ``stretched``: the chain along the x-axis at rest, all of ``q`` and ``v`` fixed (over-specified:
   the rods imply the 2N x-coordinates, which are accepted as redundant);

@@ -52,7 +52,7 @@ def run(sizes=(10, 20, 50, 100, 200, 500, 1000)) -> list[dict]:
         t0 = time.perf_counter()
         r = reduce_index(m)
         t_dk = time.perf_counter() - t0
-        assert r.nz == 3 * N and r.nx == 4 * N, r  # q' = v eliminated: states (q, v)
+        assert r.nz == N and r.nx == 4 * N, r  # q' = v, v' = f eliminated: x = (q, v), z = lam
         t0 = time.perf_counter()
         rd = reduce_index(m, method="dummy_derivatives")
         t_dd = time.perf_counter() - t0

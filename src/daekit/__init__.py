@@ -9,7 +9,7 @@ conditions, consistent initialization, simulation with drift control, and optima
 3
 """
 
-from . import mechanics, structure
+from . import events, mechanics, structure
 from .analysis import Analysis, EasyTest, analyze, differential_index, is_index1
 from .ensemble import Ensemble, ensemble, ensemble_ocp, sample
 from .errors import (
@@ -87,6 +87,7 @@ __all__ = [
     "StructuralError",
     "analyze",
     "differential_index",
+    "events",
     "examples",
     "is_index1",
     "structure",

@@ -579,6 +579,9 @@ class Analysis:
     structural_part : (int, int) or None
         Where structural analysis fails in part of the model only: index and DOF of the rest,
         from the Sigma-method (trusted there).
+    declared_invariants : list of str
+        Invariants declared with :meth:`daekit.Model.invariant` (checked along the dynamics by
+        :func:`daekit.reduce_index`); each removes one degree of freedom from ``dof``.
     """
 
     model_name: str
@@ -602,6 +605,7 @@ class Analysis:
     structural_part: tuple[int, int] | None = None
     test_points: str = "at a random point"
     index_confirmed: tuple | None = None
+    declared_invariants: list[str] = field(default_factory=list)
     _model: Model | None = field(default=None, repr=False, compare=False)
     _definitions: list[str] | None = field(default=None, repr=False, compare=False)
 
@@ -640,6 +644,7 @@ class Analysis:
             "equation_offsets": self.equation_offsets,
             "variable_offsets": self.variable_offsets,
             "easy_test": bool(self.easy),
+            "declared_invariants": list(self.declared_invariants),
         }
 
 
@@ -838,7 +843,9 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
          confirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
+    declared = [e.element(i) for e in model.declared_invariants for i in range(e.size)]
     return Analysis(
+        declared_invariants=declared,
         sigma=[(eq_names[i], var_names[j], int(k))
                for i, j, k in zip(inc.rows.tolist(), inc.cols.tolist(), inc.vals.tolist())],
         input_derivatives=_input_derivatives(model, c),
@@ -846,7 +853,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         model_name=model.name,
         structural_index=sig.index,
         index=index,
-        dof=dof,
+        dof=max(dof - len(declared), 0),
         structural_dof=sig.dof,
         structurally_ok=not singular,
         equation_offsets={eq_names[i]: int(c[i]) for i in range(n)},
@@ -1002,7 +1009,7 @@ def _explain(a: Analysis) -> str:
     lines = [
         f"Model {a.model_name!r}: {count(n, 'equation')} in {count(n, 'unknown')} "
         f"({n - n_alg} appear differentiated, {n_alg} only algebraically)"
-        + (f", {a.n_inputs} input(s)." if a.n_inputs else "."),
+        + (f", {count(a.n_inputs, 'input')}." if a.n_inputs else "."),
         "",
     ]
     if a.structurally_ok:
@@ -1074,8 +1081,20 @@ def _explain(a: Analysis) -> str:
     lines.append("")
     lines.append(
         f"Degrees of freedom: {count(a.dof, 'initial value')} can be chosen freely; the rest follow from "
-        "the equations and their hidden consistency conditions."
+        "the equations and their hidden consistency conditions"
+        + (" and the declared invariants." if a.declared_invariants else ".")
     )
+    if a.declared_invariants:
+        k = len(a.declared_invariants)
+        lines.append(
+            f"Declared invariants (m.invariant): {', '.join(a.declared_invariants)}. They hold "
+            "along every solution that starts on them (reduce_index checks that their time "
+            "derivative vanishes there), so, like consistency conditions, they must hold at the "
+            f"initial time: {a.dof + k} degrees of freedom from the equations, {a.dof} with "
+            f"the declared invariant{'s' if k > 1 else ''}. Remedies against their drift: "
+            "stabilization='projection', 'baumgarte' (c' = -a c, one pole), or "
+            "'dummy_derivatives' (one state per invariant becomes algebraic)."
+        )
     if a.structurally_ok:
         defs = set(a.definitions)
         cons = [(nm, c) for nm, c in _group({k: v for k, v in a.equation_offsets.items()
@@ -1141,7 +1160,7 @@ def _explain_failure(a: Analysis) -> list[str]:
                 f"(index {a.structural_part[0]}, {_dof_words(a.structural_part[1])}), and the "
                 "model's index is the larger, its DOF the sum.")
     idx_ok = a.structural_index == a.index
-    dof_ok = a.structural_dof == a.dof
+    dof_ok = a.structural_dof - len(a.declared_invariants) == a.dof
     claims = (
         f"index {a.structural_index}"
         + (" (right)" if idx_ok else f" (wrong: the true index is {a.index})")

@@ -572,7 +572,7 @@ def animate_drift(
     curves = {k: strip.plot([], [], "-", color=col[k], lw=1.5, label=k)[0] for k in labels}
     strip.legend(loc="lower left", fontsize=8, ncol=n, framealpha=0.9)
     fig.suptitle(title, fontsize=11)
-    clock = strip.text(0.99, 0.92, "", ha="right", va="top", transform=strip.transAxes,
+    clock = strip.text(1.0, 1.03, "", ha="right", va="bottom", transform=strip.transAxes,
                        fontsize=10)
     moving = [a for part in parts for a in part[:3] + part[4:5]] + list(curves.values())
     moving.append(clock)

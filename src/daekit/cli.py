@@ -215,6 +215,10 @@ def _cmd_simulate(args) -> int:
     maxinv = traj.max_invariant()
     print(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
           f"{traj.stats.get('steps', '?')} steps, {traj.stats.get('wall_time', float('nan')):.3f} s")
+    if traj.events:
+        shown = ", ".join(f"{n} at t = {te:.10g}" for te, n in traj.events[:10])
+        more = f", ... ({len(traj.events)} in all)" if len(traj.events) > 10 else ""
+        print(f"events: {shown}{more}")
     pnames = set(r.p_names)
     for k, v in final.items():
         if k not in pnames:
@@ -286,6 +290,7 @@ def _trajectory_json(r, traj) -> dict:
         "parameters": pvals,
         "invariant_names": traj.invariant_names, "invariants": traj.invariants.tolist(),
         "stats": {k: v for k, v in traj.stats.items() if isinstance(v, (int, float, str))},
+        "events": [[te, n] for te, n in traj.events],
     }
 
 
@@ -400,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--t-end", type=float, default=100.0, help="simulated seconds (default: 100)")
     t.add_argument("--quiet", action="store_true", help="no progress on stderr")
     t.add_argument("--gifs", action="store_true",
-                   help="also write the GIF animations (real time, 480 pixels; a few seconds more)")
+                   help="also write the GIF animations (real time, 480 pixels; 10-20 s more)")
     t.add_argument("--no-animations", action="store_true",
                    help="no GIF animations (the default; overrides --gifs)")
     t.add_argument("--no-ocp", action="store_true", help="skip the optimal control section")

@@ -51,7 +51,7 @@ import hashlib
 import math
 import os
 import pickle
-import sys
+import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Executor, as_completed
@@ -335,7 +335,8 @@ def _csv_value(v):
 
 # ----------------------------------------------------------------------------------------------
 # workers
-_SYSTEMS: dict[str, Any] = {}  # digest -> ReducedDAE, in each worker process
+_SYSTEMS: dict[str, Any] = {}  # digest -> (ReducedDAE, inputs), in each worker process
+_LOCK = threading.RLock()
 
 
 def _dumps(obj) -> bytes:
@@ -369,15 +370,20 @@ def _install(key: str, blob: bytes) -> None:
 
 
 def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, dict]]:
-    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``."""
-    if key not in _SYSTEMS:
-        if blob is None:
-            raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
-        _install(key, blob)
-    r, inputs = _SYSTEMS[key]
-    job = pickle.loads(payload)  # noqa: S301 - our own serialization
-    job["inputs"] = inputs
-    return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``.
+
+    CasADi's symbolic objects are not thread-safe (initialize builds SX expressions): chunks
+    given to threads of one process (a thread pool, a Dask worker with several threads) run
+    one after the other under a lock; processes run in parallel."""
+    with _LOCK:
+        if key not in _SYSTEMS:
+            if blob is None:
+                raise RuntimeError("daekit.ensemble: the system was not installed in this worker")
+            _install(key, blob)
+        r, inputs = _SYSTEMS[key]
+        job = pickle.loads(payload)  # noqa: S301 - our own serialization
+        job["inputs"] = inputs
+        return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
 
 
 def _run_one(r, s: dict, job: dict) -> dict:
@@ -438,31 +444,29 @@ def _plain_value(v):
 # ----------------------------------------------------------------------------------------------
 # progress over samples (a terminal only)
 class _SampleProgress:
-    """A one-line bar over samples on stderr, drawn only when stderr is a terminal."""
+    """The bar over samples: daekit's one progress bar (:class:`daekit.simulate.progress.
+    Progress`, drawn only when stderr is a terminal) counting samples, with failures and the
+    time left."""
 
     def __init__(self, enabled: bool, total: int, label: str = "ensemble") -> None:
-        stream = sys.stderr
-        self.enabled = bool(enabled) and total > 0 and hasattr(stream, "isatty") and stream.isatty()
-        self.total, self.done, self.failed, self.label = total, 0, 0, label
+        from .simulate.progress import Progress
+
+        self.bar = Progress(enabled, 0.0, float(total), label)
+        self.enabled = self.bar.enabled
+        self.total = total
         self.t0 = time.perf_counter()
 
     def update(self, done: int, failed: int) -> None:
-        self.done, self.failed = done, failed
         if not self.enabled:
             return
-        frac = done / self.total
-        bar = "#" * int(25 * frac)
         el = time.perf_counter() - self.t0
-        eta = el / frac - el if frac > 0 else float("nan")
-        sys.stderr.write(f"\r{self.label} [{bar:<25}] {done}/{self.total} samples"
-                         f"{f', {failed} failed' if failed else ''}  {el:.1f} s"
-                         f"{f' (about {eta:.0f} s left)' if 0 < frac < 1 else ''}   ")
-        sys.stderr.flush()
+        frac = done / self.total
+        left = f", about {el / frac - el:.0f} s left" if 0 < frac < 1 else ""
+        self.bar.update(float(done), f"{done}/{self.total} samples"
+                        f"{f', {failed} failed' if failed else ''}, {el:.1f} s{left}   ")
 
     def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
+        self.bar.close()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -693,7 +697,7 @@ def ensemble(
 
 def _check_simulate_options(opts: Mapping) -> None:
     """The options every sample shares, checked once here (not failing every sample)."""
-    from .simulate.idas import STABILIZATIONS
+    from .simulate.dispatch import STABILIZATIONS
 
     stab = opts.get("stabilization")
     if isinstance(stab, str) and stab.lower() == "none":

@@ -6,29 +6,45 @@ the pendulum's ``c = (p.p - L^2)/2`` and ``c' = p.v``) hold. :func:`initialize` 
 that manifold: values you *fix* are held exactly, values you *guess* are pulled to in a weighted
 least-squares sense, and everything else is found.
 
-Method (Gauss--Newton with CasADi Jacobians): unknowns ``w = (x, z)``; constraints
-``h(w) = [alg; invariants; fixed(w) - fixed values] = 0``; objective
-``||G(w) - guess||^2``. Each iteration solves the linearized problem
-``min ||G + J_G d - guess||  s.t.  h + J_h d = 0`` (minimum-norm particular step plus a
-least-squares step in the null space), so redundant but consistent constraints do no harm.
+Method (Newton--Lagrange on the constraints, with CasADi derivatives): unknowns ``w = (x, z)``;
+constraints ``h(w) = [alg; invariants; fixed(w) - fixed values] = 0``; objective
+``||G(w) - guess||^2 / 2``. Each iteration solves the quadratic problem
+``min ||G + J_G d - guess||^2 / 2 + d^T C d / 2  s.t.  h + J_h d = 0``, ties broken by the
+smallest ``||d_x||`` (``z`` is not weighted: it follows from ``alg``), so redundant but
+consistent constraints do no harm. ``C`` is the curvature of the Lagrangian (the invariants'
+and the used values' second derivatives times their multipliers, from the last step): plain
+Gauss--Newton (``C = 0``) converges slowly or diverges where the constraints are curved and
+the guesses off them, as for a 200-link chain guessed 1 cm off its rods, whose multipliers
+are large; with ``C`` the iteration is Newton's on the optimality conditions and converges in
+a handful of steps at any size (the first step, and any step the line search would cut below
+1/8, is Gauss--Newton's). After every step ``z`` is re-solved from ``alg(x, z) = 0`` at the
+new ``x`` (one linear solve when ``alg`` is affine in ``z``, as for mechanical systems), so the
+iteration runs on ``x`` alone, where the problem lives. Trial points are accepted when they
+reduce ``||h||`` or the exact penalty ``f + rho ||h||_1``.
 Values that cannot be made consistent leave a residual; the rows carrying it (at a
-Gauss--Newton stationary point the residual lies in the left null space of ``J_h``) name the
-conflicting fixed values and consistency conditions.
+stationary point the residual lies in the left null space of ``J_h``) name the conflicting
+fixed values and consistency conditions.
+
+Everything that depends only on the system (the vector of every named value as an expression,
+the name-to-row map, the CasADi functions of ``[alg; invariants]`` and of the values, their
+sparse Jacobians, the Hessian of the invariants) is made once and kept on the system; a call
+then only selects the rows its fixed values and guesses use.
 
 Two implementations of the same method, chosen by the number of unknowns ``nx + nz``:
 
-- small systems (below ``_SPARSE_MIN_UNKNOWNS = 300``): dense SVDs of ``J_h`` for the step,
-  an SVD projection plus in-order Gram--Schmidt for the redundant fixed values, a
-  column-pivoted QR for the free states;
+- small systems (below ``_SPARSE_MIN_UNKNOWNS = 300``): dense NumPy throughout: ``z``
+  eliminated with an LU of ``d alg / d z``, SVDs for the step, an SVD projection plus in-order
+  Gram--Schmidt for the redundant fixed values, a column-pivoted QR for the free states;
 - big systems: CasADi's sparse Jacobians as SciPy CSC matrices; the step from the KKT system
-  ``[[W, J^T], [J, 0]]`` (``W = J_G^T J_G``, or ``I`` without guesses) factorized by SuperLU
-  after a tiny proximal regularization and polished by iterative refinement; ``z`` eliminated
-  by SuperLU on ``d alg / d z``; a minimum-weight bipartite matching picks a well-conditioned
-  square basis ``C_D`` of the consistency rows (the dependent states ``D``; the others are
-  free), and a fixed row is redundant when its coordinates on the free states
-  ``f_N - f_D C_D^{-1} C_N`` depend on those of the fixed rows before it. Everything is
-  linear in the size for mechanisms such as long chains (a 1000-link chain, 7000 unknowns,
-  in about a second). Degenerate consistency rows (numerically rank deficient at the
+  ``[[W, J^T], [J, 0]]`` (``W = J_G^T J_G + C + eps D_x``, or ``D_x`` without guesses)
+  factorized by SuperLU as it is (regularized and refined only when redundant rows make it
+  singular); ``z`` re-solved by SuperLU on ``d alg / d z``; a minimum-weight bipartite matching
+  picks a well-conditioned square basis ``C_D`` of the consistency rows (the dependent states
+  ``D``; the others are free), and a fixed row is redundant when its coordinates on the free
+  states ``f_N - f_D C_D^{-1} C_N`` depend on those of the fixed rows before it. The values
+  are linear in the size for mechanisms such as long chains; the redundancy analysis of many
+  fixed *dependent* states (all of a chain's ``q`` and ``v`` fixed) is not (``C_D^{-1}`` is
+  dense for a chain). Degenerate consistency rows (numerically rank deficient at the
   solution) fall back to the dense analysis for ``free`` and ``redundant``.
 
 Both give the same values, the same ``redundant`` values and messages; ``free`` is a valid
@@ -50,7 +66,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
-from .errors import DaekitError, InitializationError
+from .errors import InitializationError
 from .threads import limit_blas_threads
 from .wording import count
 
@@ -94,7 +110,13 @@ class InitialValues:
         Max |alg|, |invariant| at the solution.
     iterations : int
     notes : list of str
-        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced).
+        What was done for you (e.g. a Model given instead of a ReducedDAE was reduced), and
+        remarks such as a determined value that is fixed only up to its sign (``q[3]`` of a
+        unit quaternion with the other three components fixed: the guess's sign is taken).
+    determined : list of str
+        States (and dummy states) that are not fixed but locally determined by the fixed
+        values and the consistency conditions (unit vectors orthogonal to the null space of
+        their Jacobian; systems below 300 unknowns). Empty when nothing is determined.
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
     """
@@ -115,9 +137,10 @@ class InitialValues:
     notes: list[str] = field(default_factory=list)
     fixed: list[str] = field(default_factory=list)
     dof_names: list[str] = field(default_factory=list)
+    determined: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
-        from .simulate.trajectory import expand_name
+        from .model import expand_name
 
         elems = expand_name(name, self.values, "these initial values")
         if len(elems) == 1 and ("[" in name or not elems[0].endswith("]")):
@@ -132,9 +155,10 @@ class InitialValues:
         )
 
 
-def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
-    """(element name, expression of (t,x,z,u,p), value) for each element meant by ``key``."""
-    from .simulate.trajectory import NameNotFoundError, expand_name
+def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, float]]:
+    """(element name, row in the system's variable vector, value) for each element meant by
+    ``key``."""
+    from .model import NameNotFoundError, expand_name
 
     pnames = list(getattr(r, "p_names", []) or [])
     if pnames and isinstance(key, str):
@@ -160,12 +184,122 @@ def _name_values(r, key: str, val, what: str) -> list[tuple[str, ca.SX, float]]:
         arr = np.repeat(arr, len(elems))
     if arr.size != len(elems):
         raise InitializationError(
-            f"{what}: {key!r} has {len(elems)} element(s) ({', '.join(elems)}) but "
-            f"{arr.size} value(s) were given"
+            f"{what}: {key!r} has {count(len(elems), 'element')} ({', '.join(elems)}) but "
+            f"{count(arr.size, 'value')} {'was' if arr.size == 1 else 'were'} given"
         )
     if not np.all(np.isfinite(arr)):
         raise InitializationError(f"{what}: the value of {key!r} is not finite: {val!r}")
-    return [(e, ca.SX(r.variables[e]), float(v)) for e, v in zip(elems, arr, strict=False)]
+    return [(e, row_of[e], float(v)) for e, v in zip(elems, arr.tolist(), strict=True)]
+
+
+class _SystemCache:
+    """What :func:`initialize` needs of a system, made once per system and kept on it (a
+    system's names and expressions do not change): the vector ``V`` of every named value as
+    an expression of ``w = (x, z)``, ``t``, ``u``, ``p``; the name-to-row map; CasADi functions
+    for ``[alg; invariants]``, ``V`` and their sparse Jacobians; the symbol hash and the
+    position in ``w`` of every row of ``V`` that is a plain symbol."""
+
+    def __init__(self, r) -> None:
+        nx, nz = r.nx, r.nz
+        self.key = _cache_key(r)
+        self._refs = (r.x, r.z, r.alg, r.invariants, r.variables, r.u, r.t)  # ids stay unique
+        names = list(r.variables)
+        exprs = list(r.variables.values())
+        known = set(names)
+        u_split = ca.vertsplit(r.u) if r.nu else []
+        for i, nm in enumerate(r.u_names):
+            if nm not in known:
+                names.append(nm)
+                exprs.append(u_split[i])
+        self.names = names
+        self.row_of = {nm: i for i, nm in enumerate(names)}
+        V = ca.vertcat(*[ca.SX(e) if not isinstance(e, ca.SX) else e for e in exprs]) \
+            if exprs else ca.SX(0, 1)
+        W = ca.vertcat(r.x, r.z)
+        if W.numel() and not W.is_valid_input():  # x, z not plain symbols: substitute once
+            w = ca.SX.sym("w", nx + nz)
+            alg, inv, V = ca.substitute([ca.SX(r.alg), ca.SX(r.invariants), V], [W], [w])
+        else:
+            w, alg, inv = W, ca.SX(r.alg), ca.SX(r.invariants)
+        self.w = w
+        self.alg = ca.vec(ca.densify(alg))
+        self.inv = ca.vec(ca.densify(inv)) if inv.numel() else ca.SX(0, 1)
+        self.V = ca.vec(ca.densify(V))
+        self.args = [w, r.t, r.u, r.p]
+        core = ca.vertcat(self.alg, self.inv)
+        self.core = core
+        Jcore = ca.jacobian(core, w)
+        self.Jz = Jcore[: int(self.alg.numel()), nx:]  # d alg / d z (for settle)
+        self.core_fun = ca.Function("core", self.args, [core, Jcore])
+        self.core_ccs = _ccs(self.core_fun.sparsity_out(1))
+        self.v_fun = ca.Function("values", self.args, [self.V])
+        # rows of V that are plain symbols: hash (two names of one quantity) and w position,
+        # found for the rows that fixed values and guesses use, on first use (-2: not yet)
+        nv = int(self.V.numel())
+        self.sym_hash = np.full(nv, -2, dtype=np.int64)
+        self.w_pos = np.full(nv, -1, dtype=np.int64)
+        self.elems: dict[int, ca.SX] = {}
+        self._pos_of = None
+        self.settle = {}
+        self.hess: dict = {}
+        self.zdep = None
+
+    def describe(self, rows: np.ndarray) -> None:
+        """Fill ``sym_hash``, ``w_pos`` and ``elems`` for ``rows`` (one slice of ``V``)."""
+        todo = np.unique(rows[self.sym_hash[rows] == -2]) if rows.size else rows
+        if not todo.size:
+            return
+        if self._pos_of is None:
+            ws = ca.vertsplit(self.w) if self.w.numel() else []
+            self._pos_of = {e.element_hash(): i for i, e in enumerate(ws)}
+        part = self.V[todo.tolist()]
+        elems = ca.vertsplit(part) if todo.size > 1 else [part]
+        for i, e in zip(todo.tolist(), elems, strict=True):
+            self.elems[i] = e
+            if e.is_symbolic():
+                hsh = e.element_hash()
+                self.sym_hash[i] = hsh
+                self.w_pos[i] = self._pos_of.get(hsh, -1)
+            else:
+                self.sym_hash[i] = -1
+
+    def hessian(self, part: str):
+        """Hessian functions, made on first use: ``"inv"``: ``H(w, t, u, p, y)`` of
+        ``y^T invariants``; ``"alg"``: of ``y^T alg``."""
+        if part not in self.hess:
+            expr = self.inv if part == "inv" else self.alg
+            y = ca.SX.sym("y", expr.numel())
+            f = ca.Function(f"hess_{part}", [*self.args, y],
+                            [ca.hessian(ca.dot(y, expr), self.w)[0]])
+            self.hess[part] = (f, _ccs(f.sparsity_out(0)))
+        return self.hess[part]
+
+    def z_dependent(self, nx: int) -> tuple[bool, np.ndarray]:
+        """Whether the invariants depend on ``z``, and which rows of ``V`` do."""
+        if self.zdep is None:
+            zs = self.w[nx:]
+            if zs.numel():
+                inv_z = bool(self.inv.numel()) and bool(ca.depends_on(self.inv, zs))
+                rows, _ = ca.jacobian_sparsity(self.V, zs).get_triplet()
+            else:
+                inv_z, rows = False, []
+            mask = np.zeros(int(self.V.numel()), dtype=bool)
+            mask[np.asarray(rows, dtype=np.int64)] = True
+            self.zdep = (inv_z, mask)
+        return self.zdep
+
+
+def _cache_key(r) -> tuple:
+    return (id(r.x), id(r.z), id(r.alg), id(r.invariants), id(r.variables), len(r.variables),
+            id(r.u), id(r.t))
+
+
+def _system_cache(r) -> _SystemCache:
+    c = r.__dict__.get("_initialize_cache")
+    if c is None or c.key != _cache_key(r):
+        c = _SystemCache(r)
+        r.__dict__["_initialize_cache"] = c
+    return c
 
 
 def _fmt(names_vals: list[tuple[str, float]]) -> str:
@@ -206,9 +340,10 @@ def initialize(
     tol : float
         Required max |residual| (scaled by ``1 + |values|``).
 
-    Method: Gauss--Newton with CasADi Jacobians and minimum-norm steps, dense SVDs for small
-    systems and sparse SuperLU factorizations from 300 unknowns on (see the module
-    docstring); no IPOPT needed.
+    Method: Newton--Lagrange steps (Gauss--Newton plus the constraints' curvature) with CasADi
+    derivatives, ``z`` re-solved from ``alg`` after each step, dense NumPy for small systems and
+    sparse SuperLU factorizations from 300 unknowns on (see the module docstring); no IPOPT
+    needed. What depends only on ``r`` is computed once and cached on it.
 
     Example
     -------
@@ -228,8 +363,8 @@ def initialize(
     >>> init.fixed, len(init.free)        # one more value (e.g. p[1]) could be fixed
     (['v[0]'], 1)
     """
+    from .inputs import InputSignal, resolve_params
     from .reduced import ReducedDAE
-    from .simulate.inputs import InputSignal, resolve_params
 
     notes: list[str] = []
     if not isinstance(r, ReducedDAE):  # a Model or LagrangianSystem: reduced (and noted)
@@ -266,44 +401,41 @@ def initialize(
     sig = InputSignal(r, inputs)
     u0 = sig.value(t0)
 
-    w = ca.SX.sym("w", n)
-    xs = w[:nx] if nx else ca.SX(0, 1)
-    zs = w[nx:] if nz else ca.SX(0, 1)
+    sc = _system_cache(r)
+    args = (t0, u0, pv)
 
-    def on_w(expr: ca.SX) -> ca.SX:
-        e = ca.vec(ca.densify(ca.SX(expr)))
-        return ca.substitute(
-            [e],
-            [r.t, r.x, r.z, r.u, r.p],
-            [ca.SX(t0), xs, zs, ca.DM(u0), ca.DM(pv)],
-        )[0]
-
-    fixed_items: list[tuple[str, ca.SX, float]] = []
     for what, given in (("fixed", fixed), ("guess", guess)):
         if given is not None and not isinstance(given, Mapping):
             raise InitializationError(
                 f"{what} must be a dict of names and values, e.g. {{'p[0]': 1.0}}, "
                 f"got {type(given).__name__}"
             )
+    fixed_items: list[tuple[str, int, float]] = []
     for k, v in (fixed or {}).items():
-        fixed_items += _name_values(r, k, v, "fixed")
-    guess_items: list[tuple[str, ca.SX, float]] = []
+        fixed_items += _name_values(r, k, v, "fixed", sc.row_of)
+    guess_items: list[tuple[str, int, float]] = []
     for k, v in (guess or {}).items():
-        guess_items += _name_values(r, k, v, "guess")
+        guess_items += _name_values(r, k, v, "guess", sc.row_of)
     fixed_names = [f[0] for f in fixed_items]
     dup = {nm for nm, c in Counter(fixed_names).items() if c > 1}
     if dup:
         raise InitializationError(f"fixed: {sorted(dup)} given more than once")
+    fix_idx = np.array([f[1] for f in fixed_items], dtype=np.int64)
+    fix_val = np.array([f[2] for f in fixed_items])
+    g_idx = np.array([g[1] for g in guess_items], dtype=np.int64)
+    gval = np.array([g[2] for g in guess_items])
+    sc.describe(np.concatenate([fix_idx, g_idx]))
     # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols are
-    # compared by hash, other expressions pairwise
+    # compared by their hash (made once per system), other expressions pairwise
     seen: dict[int, tuple[str, float]] = {}
     others: list[tuple[str, ca.SX, float]] = []
-    for ni, ei, vi in fixed_items:
-        e = ca.SX(ei)
-        if e.is_symbolic():
-            nj, vj = seen.setdefault(e.element_hash(), (ni, vi))
+    for (ni, ri, vi) in fixed_items:
+        hsh = int(sc.sym_hash[ri])
+        if hsh != -1:
+            nj, vj = seen.setdefault(hsh, (ni, vi))
             pairs = [(nj, vj)] if nj != ni else []
         else:
+            e = sc.elems[ri]
             pairs = [(nj, vj) for nj, ej, vj in others if ca.is_equal(e, ej, 2)]
             others.append((ni, e, vi))
         for nj, vj in pairs:
@@ -313,71 +445,90 @@ def initialize(
                     f"each other: in this system both are the same quantity; fix only one"
                 )
 
-    def on_w_all(items) -> ca.SX:  # one substitution for all elements (not one per element)
-        if not items:
-            return ca.SX(0, 1)
-        return on_w(ca.vertcat(*[ca.vec(ca.densify(ca.SX(e))) for _, e, _ in items]))
+    n_alg, n_inv = int(sc.alg.numel()), int(sc.inv.numel())
+    alg_names = r.info.get("alg_names")
+    if not alg_names or len(alg_names) != n_alg:
+        alg_names = [f"alg[{i}]" for i in range(n_alg)]
+    row_names = list(alg_names) + list(r.invariant_names) + fixed_names
+    use_sparse = n >= _SPARSE_MIN_UNKNOWNS
 
-    alg = on_w(r.alg)
-    inv = on_w(r.invariants) if r.invariants.numel() else ca.SX(0, 1)
-    fix_expr = on_w_all(fixed_items)
-    fix_val = np.array([v for _, _, v in fixed_items])
-    h = ca.vertcat(alg, inv, fix_expr)
-    G = on_w_all(guess_items)
-    gval = np.array([v for _, _, v in guess_items])
-    row_names = (
-        [f"alg[{i}]" for i in range(alg.numel())]
-        + list(r.invariant_names)
-        + fixed_names
-    )
-    n_alg, n_inv = int(alg.numel()), int(inv.numel())
-    hfun = ca.Function("h", [w], [h, ca.jacobian(h, w)])
-    gfun = ca.Function("g", [w], [G, ca.jacobian(G, w)])
+    # the rows of V the fixed values and guesses use, and their Jacobian: unit rows for plain
+    # symbols of w, zero rows for other symbols (inputs, parameters), a sparse CasADi
+    # Jacobian only for the rows that are expressions (made per call, for those rows only)
+    used, inv_used = (np.unique(np.concatenate([fix_idx, g_idx]), return_inverse=True)
+                      if fix_idx.size + g_idx.size else (fix_idx, fix_idx))
+    fix_k, g_k = inv_used[: fix_idx.size], inv_used[fix_idx.size:]
+    expr_k = np.nonzero(sc.sym_hash[used] == -1)[0] if used.size else used
+    unit_k = np.nonzero((sc.sym_hash[used] != -1) & (sc.w_pos[used] >= 0))[0] if used.size \
+        else used
+    S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
+                           shape=(used.size, n))
+    if expr_k.size:
+        Ve = sc.V[used[expr_k].tolist()]
+        used_fun = ca.Function("used_values", sc.args, [Ve, ca.jacobian(Ve, sc.w)])
+        used_ccs = _ccs(used_fun.sparsity_out(1))
+        P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
+                               shape=(used.size, expr_k.size))
+
+    if not use_sparse:  # small systems: dense NumPy throughout (no sparse overhead)
+        S_unit = S_unit.toarray()
+        if expr_k.size:
+            P_expr = P_expr.toarray()
+
+    def values_and_jac(wv, jac: bool = True):
+        """All named values at ``wv``, and the Jacobian of the used rows (CSR, or dense on
+        the dense path)."""
+        Vv = np.asarray(sc.v_fun(wv, *args), dtype=float).ravel()
+        if not jac:
+            return Vv, None
+        if expr_k.size:
+            _, Je = used_fun(wv, *args)
+            if not use_sparse:
+                return Vv, S_unit + P_expr @ np.asarray(Je.full(), dtype=float)
+            return Vv, (S_unit + P_expr @ _to_csc(Je, used_ccs)).tocsr()
+        return Vv, S_unit
+
+    def gfun(wv):
+        """Guessed values and their Jacobian (sparse CSC, or dense on the dense path)."""
+        Vv, JU = values_and_jac(wv)
+        return Vv[g_idx], (JU[g_k].tocsc() if use_sparse else JU[g_k])
 
     # starting point: x, z from guesses/fixed values that name them directly, else 0
     w0 = np.zeros(n)
-    direct = {}
-    for i, nm in enumerate(list(r.x_names) + list(r.z_names)):
-        direct[nm] = i
-    for nm, _, v in guess_items + fixed_items:
-        if nm in direct:
-            w0[direct[nm]] = v
-    use_sparse = n >= _SPARSE_MIN_UNKNOWNS
-    # units do not matter (small systems): rows and unknowns scaled by the equilibration of
-    # the Jacobian at the start, h_s(ws) = dr h(dc ws) (daekit.numerics.equilibrate)
-    dc_w, dr_h = np.ones(n), None
-    if not use_sparse and n:
-        dr_h, dc_w = _start_scaling(hfun, w0)
-        if _spread(dr_h) <= _SCALE_SPREAD and _spread(dc_w) <= _SCALE_SPREAD:
-            dr_h, dc_w = None, np.ones(n)  # well scaled already: iterate as it is
-    if dr_h is not None:
-        ws = ca.SX.sym("ws", n)
-        w_of_ws = ca.DM(dc_w) * ws
-        alg = ca.DM(dr_h[:n_alg]) * ca.substitute(alg, w, w_of_ws) if n_alg else alg
-        h = ca.DM(dr_h) * ca.substitute(h, w, w_of_ws) if h.numel() else h
-        G = ca.substitute(G, w, w_of_ws) if G.numel() else G
-        w = ws
-        hfun = ca.Function("h", [w], [h, ca.jacobian(h, w)])
-        gfun = ca.Function("g", [w], [G, ca.jacobian(G, w)])
-        fix_val = fix_val * dr_h[n_alg + n_inv:]
-        w0 = w0 / dc_w
-    J_pattern = _ccs(hfun.sparsity_out(1))
-    JG_pattern = _ccs(gfun.sparsity_out(1))
+    given = np.zeros(n, dtype=bool)
+    for _, ri, v in guess_items + fixed_items:
+        k = int(sc.w_pos[ri])
+        if k >= 0:
+            w0[k] = v
+            given[k] = True
     # z is a function of x wherever d alg / d z is nonsingular (index 1): after every step it
     # is re-solved from alg at the new x, so that the iteration is Gauss-Newton on x alone
     # (quadratic from a rough guess; a joint step on (x, z) is spoiled by the bilinear terms
     # such as lam * q of mechanical systems)
-    settle = _z_solver(alg, w, nx, use_sparse) if (nz and n_alg == nz) else (lambda wv: wv)
+    settled = {"ok": False}
+    if nz and n_alg == nz:
+        key = bool(use_sparse)
+        if key not in sc.settle:
+            sc.settle[key] = _z_solver(sc.alg, sc.Jz, sc.w, sc.args, nx, use_sparse)
+        z_solve = sc.settle[key]
+
+        def settle(wv):
+            out = z_solve(wv, args)
+            settled["ok"] = out is not wv  # False where d alg / d z was singular (unchanged)
+            return out
+    else:
+        def settle(wv):
+            return wv
     w0 = settle(w0)
     metric_nx = nx if (nz and n_alg == nz) else n
 
     def hval(wv):
-        hv, J = hfun(wv)
-        hv = np.asarray(hv, dtype=float).ravel()
-        hv[n_alg + n_inv:] -= fix_val
+        c, Jc = sc.core_fun(wv, *args)
+        Vv, JU = values_and_jac(wv)
+        hv = np.concatenate([np.asarray(c, dtype=float).ravel(), Vv[fix_idx] - fix_val])
         if use_sparse:
-            return hv, _to_csc(J, J_pattern)
-        return hv, np.asarray(J.full() if hasattr(J, "full") else J, dtype=float)
+            return hv, sp.vstack([_to_csc(Jc, sc.core_ccs), JU[fix_k]], format="csc")
+        return hv, np.vstack([np.asarray(Jc.full(), dtype=float), JU[fix_k]])
 
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
@@ -387,25 +538,53 @@ def initialize(
     def objective(wv) -> float:
         if not gval.size:
             return 0.0
-        return 0.5 * float(np.sum((np.asarray(gfun(wv)[0], dtype=float).ravel() - gval) ** 2))
+        return 0.5 * float(np.sum((values_and_jac(wv, False)[0][g_idx] - gval) ** 2))
 
-    lagr = {}
+    # rows of V that the guesses and fixed values use and that are not plain symbols (those
+    # have curvature); with z the curvature of alg matters only where some used row (or an
+    # invariant) depends on z: otherwise alg's multipliers vanish at the solution
+    used = np.unique(np.concatenate([fix_idx, g_idx])) if fix_idx.size + g_idx.size else fix_idx
+    curved = used[sc.sym_hash[used] == -1] if used.size else used
+    inv_z, v_z = sc.z_dependent(nx)
+    with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
+    extra = {}
+    decoupled = bool(nz) and n_alg == nz and not with_alg
+
+    def gfun_x(_wx):
+        """The guesses' values and Jacobian on x (decoupled steps; evaluated at the current
+        full point, set by the loop)."""
+        Gv, JG = gfun(current["w"])
+        return Gv, JG[:, :nx]
+
+    current: dict = {}
 
     def curvature(wv, y):
         """Curvature of the Lagrangian ``f + y^T h`` beyond Gauss--Newton's ``J_G^T J_G``:
-        ``sum y_i h_i'' + sum (G_j - guess_j) G_j''`` (sparse; the CasADi function is made on
-        first use). Without it Gauss--Newton is slow or diverges where the constraints are
-        curved and the guesses off them (a 200-link chain from 1 cm off: the rods'
-        multipliers are large), with it the iteration is Newton's on the KKT conditions."""
-        if "f" not in lagr:
-            ys = ca.SX.sym("y", h.numel())
-            rg = ca.SX.sym("rg", G.numel())
-            Hs = ca.hessian(ca.dot(ys, h) + ca.dot(rg, G), w)[0]
-            lagr["f"] = ca.Function("lagr_hess", [w, ys, rg], [Hs])
-            lagr["ccs"] = _ccs(lagr["f"].sparsity_out(0))
-        rgv = np.asarray(gfun(wv)[0], dtype=float).ravel() - gval
-        Hv = _to_csc(lagr["f"](wv, y, rgv), lagr["ccs"])
-        return Hv if use_sparse else Hv.toarray()
+        ``sum y_i h_i'' + sum (G_j - guess_j) G_j''`` (sparse; the CasADi functions are made on
+        first use, the invariants' once per system). Without it Gauss--Newton is slow or
+        diverges where the constraints are curved and the guesses off them (a 200-link chain
+        from 1 cm off: the rods' multipliers are large), with it the iteration is Newton's on
+        the KKT conditions."""
+        H = sp.csc_matrix((n, n))
+        if n_inv:
+            f, ccs = sc.hessian("inv")
+            H = H + _to_csc(f(wv, *args, y[n_alg:n_alg + n_inv]), ccs)
+        if with_alg and n_alg:
+            f, ccs = sc.hessian("alg")
+            H = H + _to_csc(f(wv, *args, y[:n_alg]), ccs)
+        if curved.size:
+            if "f" not in extra:
+                yv = ca.SX.sym("yv", curved.size)
+                Vc = sc.V[curved.tolist()]
+                f = ca.Function("hess_values", [*sc.args, yv],
+                                [ca.hessian(ca.dot(yv, Vc), sc.w)[0]])
+                extra["f"], extra["ccs"] = f, _ccs(f.sparsity_out(0))
+            yv = np.zeros(int(sc.V.numel()))
+            np.add.at(yv, fix_idx, y[n_alg + n_inv:])
+            np.add.at(yv, g_idx, values_and_jac(wv, False)[0][g_idx] - gval)
+            H = H + _to_csc(extra["f"](wv, *args, yv[curved]), extra["ccs"])
+        H = H.tocsc()
+        return H if use_sparse else H.toarray()
 
     def gauss_newton(wv):
         """Damped (Gauss-)Newton from ``wv``: (point, residual, Jacobian, converged, iterations).
@@ -428,12 +607,32 @@ def initialize(
                     "current point; give guesses closer to a consistent state"
                 )
             use_c = gval.size and y is not None and np.any(y)
-            candidates = ["newton", "gn"] if use_c else ["gn"]
             normh = np.linalg.norm(hv)
-            for kind in candidates:
+            # decoupled: neither the invariants nor the used values depend on z, and alg holds
+            # (z was re-solved): the step is found on x alone, without alg's rows (the
+            # densest) and z's columns in the KKT system; z follows by re-solving alg
+            dec = (decoupled and settled["ok"]
+                   and float(np.max(np.abs(hv[:n_alg]), initial=0.0)) <= 1e-8 * scale)
+            current["w"] = wv
+            # first choice, then the fallback when the line search cuts it below 1/8: the
+            # joint Gauss-Newton step on (x, z)
+            first = ("newton" if use_c else "gn", dec)
+            candidates = [first] if first == ("gn", False) else [first, ("gn", False)]
+            for kind, dec_k in candidates:
                 C = curvature(wv, y) if kind == "newton" else None
-                if use_sparse:
-                    d, yn = _gn_step_sparse(hv, J, gfun, JG_pattern, wv, gval, metric_nx, C)
+                if dec_k:
+                    Jx, hx = J[n_alg:, :nx], hv[n_alg:]
+                    Cx = C[:nx, :nx] if C is not None else None
+                    if use_sparse:
+                        Jx = Jx.tocsc()
+                        Cx = Cx.tocsc() if Cx is not None else None
+                        dx_, yx = _gn_step_sparse(hx, Jx, gfun_x, wv[:nx], gval, nx, Cx)
+                    else:
+                        dx_, yx = _gn_step(hx, Jx, gfun_x, wv[:nx], gval, nx, 0, Cx)
+                    d = np.concatenate([dx_, np.zeros(nz)])
+                    yn = np.concatenate([np.zeros(n_alg), yx])
+                elif use_sparse:
+                    d, yn = _gn_step_sparse(hv, J, gfun, wv, gval, metric_nx, C)
                 else:
                     d, yn = _gn_step(hv, J, gfun, wv, gval, metric_nx, n_alg, C)
                 rho = 2.0 * float(np.max(np.abs(yn), initial=0.0)) + 1.0
@@ -449,7 +648,7 @@ def initialize(
                         if gval.size and objective(wn) + rho * float(np.sum(np.abs(hn))) < phi:
                             break
                     alpha *= 0.5
-                if alpha >= 0.125 or kind == "gn":
+                if alpha >= 0.125:
                     break
             y = yn
             step = np.max(np.abs(wn - wv)) if n else 0.0
@@ -467,10 +666,6 @@ def initialize(
         return wv, hv, J, False, it
 
     wv, hv, J, converged, it = gauss_newton(w0.copy())
-    given = np.zeros(n, dtype=bool)
-    for nm, _, _ in guess_items + fixed_items:
-        if nm in direct:
-            given[direct[nm]] = True
     if (not converged and float(np.max(np.abs(hv), initial=0.0)) > 1e-8 * scale
             and not given.all()):
         # The default start (0 for values nobody gave) can be a singular point of the
@@ -484,11 +679,7 @@ def initialize(
             wv, hv, J, converged, it = second
     res = float(np.max(np.abs(hv), initial=0.0))
     if not converged and res > 1e-8 * scale:
-        # report in the model's units (the same numbers on the dense and the sparse path)
-        hv_u = hv / dr_h if dr_h is not None else hv
-        J_u = (J / dr_h[:, None] / dc_w[None, :]) if dr_h is not None else J
-        _raise_conflict(hv_u, J_u, row_names, n_alg, n_inv, fixed_items,
-                        float(np.max(np.abs(hv_u), initial=0.0)), it)
+        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it)
 
     found = None
     if use_sparse:
@@ -505,50 +696,80 @@ def initialize(
 
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
-    wv = wv * dc_w  # back to the model's units
-    position = {ca.SX(r.x[i]).element_hash(): i for i in range(nx)}
-    position.update({ca.SX(r.z[i]).element_hash(): nx + i for i in range(nz)})
-    for _, e, v in fixed_items:
-        e = ca.SX(e)
-        if e.is_symbolic() and e.element_hash() in position:
-            wv[position[e.element_hash()]] = v
+    for _, ri, v in fixed_items:
+        k = int(sc.w_pos[ri])
+        if k >= 0:
+            wv[k] = v
 
+    determined, notes = [], []
+    if not use_sparse and fixed_items:
+        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names),
+                                        {nm for nm, _, _ in guess_items})
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
-    values = _evaluate_variables(r, t0, x0, z0, u0, pv)
-    if dr_h is not None:
-        hv = hv / dr_h
+    values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
     # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
     # order; the free values are those of it that were not fixed (also under another name)
     dof_names = [nm for nm in r.x_names if nm in free]
-    fixed_x = {position[ca.SX(e).element_hash()] for _, e, _ in fixed_items
-               if ca.SX(e).is_symbolic() and ca.SX(e).element_hash() in position}
+    fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
     free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
         t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
         list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
+        determined=determined, notes=notes,
     )
 
 
-#: Equilibration factors spread over more than this (max / min) mean a badly scaled system
-#: (units): then Gauss--Newton runs on the scaled one.
-_SCALE_SPREAD = 2.0**10
+def _other_sign(wv, i: int, hval, scale: float, iters: int = 12) -> bool:
+    """Whether the equations ``hval(w) = 0`` also hold with ``w[i] = -wv[i]`` (the other
+    values re-solved by a few minimum-norm Gauss--Newton steps from the flipped point)."""
+    w = wv.copy()
+    w[i] = -wv[i]
+    for _ in range(iters):
+        hv, J = hval(w)
+        if not (np.all(np.isfinite(hv)) and np.all(np.isfinite(J))):
+            return False
+        if np.max(np.abs(hv), initial=0.0) <= 1e-10 * scale:
+            return True
+        J = np.array(J, dtype=float)
+        J[:, i] = 0.0  # w[i] stays at the flipped value
+        d = np.linalg.lstsq(J, -hv, rcond=1e-12)[0]
+        d[i] = 0.0
+        w = w + d
+    return False
 
 
-def _spread(f: np.ndarray) -> float:
-    return float(f.max() / f.min()) if f.size else 1.0
-
-
-def _start_scaling(hfun, w0) -> tuple[np.ndarray, np.ndarray]:
-    """Row and unknown factors (powers of two) from the equilibrated Jacobian at ``w0``
-    (all ones where it is not finite)."""
-    from .numerics import equilibrate, to_scipy
-
-    _, J = hfun(w0)
-    A = to_scipy(J)
-    if A.nnz and not np.all(np.isfinite(A.data)):
-        return np.ones(A.shape[0]), np.ones(A.shape[1])
-    return equilibrate(A)
+def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
+    """States (and dummy states) not fixed but locally determined: their unit vectors are
+    orthogonal to the null space of the Jacobian of ``[alg; invariants; fixed]``. A determined
+    value whose negative satisfies the equations too (a quaternion component from
+    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it."""
+    J = np.asarray(J, dtype=float)
+    if J.size == 0:
+        return [], []
+    nx = r.nx
+    dummies = set((r.state_selection or {}).get("dummies", []))
+    cand = [(i, nm) for i, nm in enumerate(r.x_names)] + [
+        (nx + j, nm) for j, nm in enumerate(r.z_names) if nm in dummies]
+    _, sv, vt = np.linalg.svd(J, full_matrices=True)
+    rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
+    N = vt[rank:]
+    determined, notes = [], []
+    for i, nm in cand:
+        if nm in fixed or (N.shape[0] and np.linalg.norm(N[:, i]) > 1e-8):
+            continue
+        determined.append(nm)
+        v = float(wv[i])
+        if abs(v) <= 1e-9 * scale:
+            continue
+        if _other_sign(wv, i, hval, scale):
+            whose = "the guess" if nm in guessed else "the starting point"
+            notes.append(
+                f"{nm} = {v:.6g} is determined only up to its sign: {-v:.6g} satisfies the "
+                f"fixed values and the consistency conditions too; the sign of {whose} was "
+                "taken (give a guess of the other sign for the other branch)"
+            )
+    return determined, notes
 
 
 def _qp_min_norm(A, h, H, g) -> np.ndarray:
@@ -585,8 +806,7 @@ def _gn_step(hv, J, gfun, wv, gval, nx=None, n_alg=0, C=None):
     nx = n if nx is None else nx
     H = gradf = None
     if gval.size:
-        Gv, JGd = gfun(wv)
-        JG = np.asarray(JGd.full(), dtype=float)
+        Gv, JG = gfun(wv)
         gradf = JG.T @ (np.asarray(Gv, dtype=float).ravel() - gval)
         H = JG.T @ JG
         if C is not None:
@@ -623,32 +843,35 @@ def _gn_step(hv, J, gfun, wv, gval, nx=None, n_alg=0, C=None):
     return d, y
 
 
-def _z_solver(alg: ca.SX, w: ca.SX, nx: int, sparse: bool, iters: int = 12):
-    """``settle(w)``: ``w`` with its ``z`` part re-solved from ``alg(x, z) = 0`` at fixed ``x``
+def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
+              iters: int = 12):
+    """``settle(w, (t, u, p))``: ``w`` with its ``z`` part re-solved from ``alg(x, z) = 0`` at
+    fixed ``x``
     (Newton with SuperLU or dense LU on ``d alg / d z``; one step when ``alg`` is affine in
     ``z``, as for mechanical systems). Where ``d alg / d z`` is singular or Newton does not
     converge, ``w`` is returned unchanged (the joint step stands)."""
     zs = w[nx:]
-    Jz = ca.jacobian(alg, zs)
     affine = not ca.depends_on(Jz, zs)
-    afun = ca.Function("alg_z", [w], [alg, Jz])
+    afun = ca.Function("alg_z", list(args), [alg, Jz])
     ccs = _ccs(afun.sparsity_out(1))
     count = 1 if affine else iters
 
-    def settle(wv: np.ndarray) -> np.ndarray:
+    def settle(wv: np.ndarray, vals) -> np.ndarray:
         w1 = np.array(wv, dtype=float)
         g0 = None
         for _ in range(count):
-            g, A = afun(w1)
+            g, A = afun(w1, *vals)
             g = np.asarray(g, dtype=float).ravel()
-            A = _to_csc(A, ccs)
-            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data))):
+            A = _to_csc(A, ccs) if sparse else np.asarray(A.full(), dtype=float)
+            if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data if sparse else A))):
                 return wv
             ng = float(np.max(np.abs(g), initial=0.0))
             if g0 is None:
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
+            if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
+                return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
                 break
             try:
@@ -657,7 +880,7 @@ def _z_solver(alg: ca.SX, w: ca.SX, nx: int, sparse: bool, iters: int = 12):
                 else:
                     with warnings.catch_warnings():
                         warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-                        dz = scipy.linalg.solve(A.toarray(), -g, check_finite=False)
+                        dz = scipy.linalg.solve(A, -g, check_finite=False)
             except (RuntimeError, np.linalg.LinAlgError, ValueError,
                     scipy.linalg.LinAlgWarning):
                 return wv
@@ -684,7 +907,7 @@ def _to_csc(M: ca.DM, ccs) -> sp.csc_matrix:
     return sp.csc_matrix((data, row, colind), shape=shape)
 
 
-def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, nx=None, C=None, refine: int = 10):
+def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
     """The step of :func:`_gn_step`, sparse: ``(d, y)``.
 
     ``min (G + J_G d - guess)^2 / 2 + d^T C d / 2 + eps ||d_x||^2 / 2  s.t.  h + J d = 0``
@@ -701,8 +924,7 @@ def _gn_step_sparse(hv, J, gfun, JG_ccs, wv, gval, nx=None, C=None, refine: int 
     dx = np.zeros(n)
     dx[:nx] = 1.0
     if gval.size:
-        Gv, JGd = gfun(wv)
-        JG = _to_csc(JGd, JG_ccs)
+        Gv, JG = gfun(wv)
         W = (JG.T @ JG).tocsc()
         if C is not None:
             W = (W + C).tocsc()
@@ -1033,24 +1255,3 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
     Ft = _drop_small(FN, drop)
     dependent = _greedy_dependent_sparse(Ft, 1e-9 * scale)
     return free, [fixed_names[k] for k in dependent]
-
-
-def _evaluate_variables(r, t0, x0, z0, u0, pv) -> dict[str, float]:
-    names = list(r.variables)
-    for nm, _i in zip(r.u_names, range(len(r.u_names)), strict=False):
-        if nm not in r.variables:
-            names.append(nm)
-    exprs = []
-    for nm in names:
-        if nm in r.variables:
-            exprs.append(ca.SX(r.variables[nm]))
-        else:
-            exprs.append(r.u[r.u_names.index(nm)])
-    if not names:
-        return {}
-    f = ca.Function("vars", [r.t, r.x, r.z, r.u, r.p], [ca.vertcat(*exprs)])
-    try:
-        vals = np.asarray(f(t0, x0, z0, u0, pv), dtype=float).ravel()
-    except RuntimeError as exc:  # pragma: no cover - defensive
-        raise DaekitError(f"cannot evaluate the model's variables: {exc}") from None
-    return dict(zip(names, vals.tolist(), strict=False))

@@ -283,8 +283,8 @@ class LagrangianSystem:
             val = np.atleast_1d(np.asarray(spec[1], dtype=float)).ravel()
             if val.size != sym.numel():
                 raise ModelError(
-                    f"{where}: parameter {pname!r} has {sym.numel()} symbol(s) but "
-                    f"{val.size} value(s)"
+                    f"{where}: parameter {pname!r} has {count(sym.numel(), 'symbol')} but "
+                    f"{count(val.size, 'value')}"
                 )
             self.parameter_groups.append((pname, int(sym.numel()), val))
             psyms.append(sym)
@@ -455,6 +455,7 @@ class LagrangianSystem:
         cdot = ca.jtimes(c, q, dq) if self.m else ca.SX(0, 1)
         curv = ca.jtimes(cdot, q, dq) if self.m else ca.SX(0, 1)
         cddot = ca.jtimes(c, q, a) + curv if self.m else ca.SX(0, 1)
+        mdl.mechanics = self  # the mass matrix for impacts (daekit.simulate.reset)
         self._model = mdl
         self._msym = {"q": q, "dq": dq, "a": a, "z": zsym, "u": u, "p": p, "t": mdl.t}
         self._mexpr = {"motion": motion, "c": c, "cdot": cdot, "cddot": cddot, "T": T, "V": V}

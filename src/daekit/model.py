@@ -28,7 +28,7 @@ import numpy as np
 from .errors import ModelError, StructuralError
 from .wording import count
 
-__all__ = ["Model", "Variable", "Equation", "parse_name", "element_name", "expand_name",
+__all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
            "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
@@ -153,6 +153,21 @@ class Equation:
 
 
 @dataclass
+class Event:
+    """One declared event (see :meth:`Model.event`): fires when ``expr`` crosses zero.
+
+    ``reset`` maps element names (``"der(x)"``, ``"p[0]"``) to SX expressions of the values
+    just before the event; ``direction`` is +1 (rising), -1 (falling) or 0 (both).
+    """
+
+    name: str
+    expr: ca.SX
+    direction: int = 0
+    terminal: bool = False
+    reset: dict[str, ca.SX] = field(default_factory=dict)
+
+
+@dataclass
 class Incidence:
     """Sparse Sigma matrix of a model: ``vals[k]`` is the highest derivative order of unknown
     ``cols[k]`` in equation element ``rows[k]``; absent entries are -infinity."""
@@ -193,9 +208,13 @@ class Model:
         self.t = ca.SX.sym("t")
         self.variables: dict[str, Variable] = {}
         self.equations: list[Equation] = []
+        #: declared invariants (:meth:`invariant`): ``expr = 0`` along solutions starting on it
+        self.declared_invariants: list[Equation] = []
         # element hash -> (variable, element index, derivative order)
         self._lookup: dict[int, tuple[Variable, int, int]] = {}
+        self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
         self._cache: dict[str, object] = {}
+        self.events: list[Event] = []
 
     # ------------------------------------------------------------------ declarations
     def _declare(self, name: str, kind: str, size: int, default=None) -> ca.SX:
@@ -209,13 +228,27 @@ class Model:
         if not isinstance(size, (int, np.integer)) or size < 1:
             raise ModelError(f"model {self.name!r}: variable {name!r} needs a size >= 1, got {size!r}")
         size = int(size)
-        sym = ca.vertcat(*[ca.SX.sym(element_name(name, size, i)) for i in range(size)])
+        elems = [ca.SX.sym(element_name(name, size, i)) for i in range(size)]
+        sym = ca.vertcat(*elems)
         var = Variable(name, kind, size, sym, default)
         self.variables[name] = var
-        for i in range(size):
-            self._lookup[sym[i].element_hash()] = (var, i, 0)
+        for i, e in enumerate(elems):
+            self._lookup[e.element_hash()] = (var, i, 0)
+        self._elements[name, 0] = elems
         self._cache.clear()
         return sym
+
+    def _order_elements(self, var: Variable, order: int) -> list:
+        """The scalar symbols of ``var``'s order-``order`` derivative (created on first use and
+        registered for :meth:`lookup`)."""
+        key = (var.name, order)
+        elems = self._elements.get(key)
+        if elems is None:
+            elems = ca.vertsplit(var.der(order)) if var.size > 1 else [var.der(order)]
+            for i, e in enumerate(elems):
+                self._lookup.setdefault(e.element_hash(), (var, i, order))
+            self._elements[key] = elems
+        return elems
 
     def state(self, name: str, size: int = 1) -> ca.SX:
         """Declare an unknown whose time derivative appears in the equations."""
@@ -265,8 +298,8 @@ class Model:
                 f"m.state/m.variable/m.control), got {type(x).__name__}"
             )
         out = []
-        for i in range(x.numel()):
-            e = x[i]
+        xs = ca.vertsplit(ca.vec(x)) if x.numel() > 1 else [x]
+        for e in xs:
             hit = self._lookup.get(e.element_hash()) if e.is_symbolic() else None
             if hit is None:
                 what = str(e) if e.numel() == 1 else "an expression"
@@ -291,10 +324,7 @@ class Model:
                     f"model {self.name!r}: der({var.name}) is the derivative of a parameter "
                     "(a constant); use m.state or m.control for a time-varying quantity"
                 )
-            new = var.der(order + int(k))
-            el = new[idx]
-            self._lookup.setdefault(el.element_hash(), (var, idx, order + int(k)))
-            out.append(el)
+            out.append(self._order_elements(var, order + int(k))[idx])
         self._cache.clear()
         return ca.vertcat(*out) if len(out) != 1 else out[0]
 
@@ -308,7 +338,7 @@ class Model:
             name = f"eq{len(self.equations) + 1}"
         if not isinstance(name, str) or not _NAME_RE.match(name):
             raise ModelError(f"model {self.name!r}: {name!r} is not a valid equation name")
-        if any(e.name == name for e in self.equations):
+        if any(e.name == name for e in self.equations + self.declared_invariants):
             raise ModelError(f"model {self.name!r}: the equation name {name!r} is used twice")
         if isinstance(expr, (list, tuple)):
             try:
@@ -365,6 +395,180 @@ class Model:
         self._cache.clear()
         return sx
 
+    def invariant(self, expr, name: str | None = None) -> ca.SX:
+        """Declare that ``expr = 0`` holds along the model's exact solutions once it holds at
+        the start (a unit quaternion's ``ca.dot(q, q) - 1``, a lifted state's ``w - x**2``).
+
+        A vector ``expr`` declares one invariant per element (``name[0]``, ``name[1]``, ...).
+        The claim is checked when the model is reduced (:func:`daekit.reduce_index`): the time
+        derivative of ``expr`` along the dynamics must vanish where ``expr = 0`` (and the
+        model's own consistency conditions) hold, else a :class:`ModelError` names the
+        invariant and shows the residual of its derivative. Declared invariants then go where
+        the found consistency conditions go: ``r.invariants``, ``initialize`` (held at ``t0``,
+        one degree of freedom less each), the projection and Baumgarte remedies, the
+        trajectory's invariants, and the OCP (imposed at ``t = 0`` only).
+
+        Returns the expression as an SX column.
+
+        >>> import casadi as ca, daekit as dk
+        >>> m = dk.Model("rotation")
+        >>> x = m.state("x", 2)
+        >>> _ = m.equation(m.der(x) - ca.vertcat(-x[1], x[0]), name="rotate")
+        >>> _ = m.invariant(ca.dot(x, x) - 1, name="circle")
+        >>> dk.reduce_index(m).invariant_names
+        ['circle']
+        """
+        if name is None:
+            name = f"invariant{len(self.declared_invariants) + 1}"
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise ModelError(f"model {self.name!r}: {name!r} is not a valid invariant name")
+        if any(e.name == name for e in self.equations + self.declared_invariants):
+            raise ModelError(
+                f"model {self.name!r}: the name {name!r} is already used by an equation or "
+                "an invariant; give the invariant another name"
+            )
+        n_before = len(self.equations)
+        try:
+            sx = self.equation(expr, name=name)  # the same conversion and symbol checks
+        except ModelError as exc:
+            raise ModelError(str(exc).replace(f"equation {name!r}", f"invariant {name!r}")) from None
+        finally:
+            del self.equations[n_before:]
+            self._cache.clear()
+        known = {self.t.element_hash()} | {
+            h for h, (var, _i, _o) in self._lookup.items() if var.kind in ("control", "parameter")}
+        if all(s.element_hash() in known for s in ca.symvar(sx)):
+            raise ModelError(
+                f"model {self.name!r}, invariant {name!r} involves no unknown of the model "
+                "(only time, inputs or parameters): it constrains nothing; write it in terms "
+                "of the states"
+            )
+        self.declared_invariants.append(Equation(name, sx))
+        return sx
+
+    def _check_symbols(self, sx: ca.SX, where: str) -> None:
+        """ModelError naming ``where`` if ``sx`` uses a symbol the model did not declare."""
+        tname = self.t.element_hash()
+        for s in ca.symvar(sx):
+            h = s.element_hash()
+            if h != tname and h not in self._lookup:
+                raise ModelError(
+                    f"model {self.name!r}, {where} uses the symbol {s.name()!r}, which this model "
+                    "did not declare; build it from the model's own symbols (m.state, m.der, "
+                    "m.algebraic, m.control, m.parameter, m.t)"
+                )
+
+    def event(self, expr, name: str | None = None, direction: int = 0, terminal: bool = False,
+              reset: dict | None = None) -> Event:
+        """Declare an event: it fires when the scalar ``expr`` crosses zero.
+
+        Parameters
+        ----------
+        expr : casadi.SX
+            Any scalar expression of the model's variables, derivatives, controls, parameters
+            and ``m.t``.
+        name : str, optional
+            Name in ``traj.events`` and in messages (default ``event1``, ``event2``, ...).
+        direction : +1, -1 or 0
+            +1 fires on a rising crossing (``expr`` from negative to positive), -1 on a falling
+            one, 0 on both.
+        terminal : bool
+            Stop the simulation at the event (the trajectory ends there).
+        reset : dict, optional
+            ``{element name: expression}``: new values of states or their derivatives
+            (``"der(x)"``, ``"p[0]"``, ``"der(p)"`` for a whole vector) as expressions of the
+            values just before the event, e.g. ``{"der(x)": -0.8 * m.der(x)}``. After the reset
+            the simulator restores consistency with the constraints (see
+            :mod:`daekit.simulate.events`).
+
+        Simultaneous events (located at the same time within the location tolerance) fire in
+        the order they were declared; their resets are applied in that order, each to the
+        values left by the previous one.
+
+        Example
+        -------
+        >>> import daekit as dk
+        >>> m = dk.examples.pendulum_planar()
+        >>> x = m.variables["x"].sym; y = m.variables["y"].sym
+        >>> ev = m.event(x, name="wall", direction=-1,
+        ...              reset={"der(x)": -0.8 * m.der(x), "der(y)": -0.8 * m.der(y)})
+        >>> ev.name, ev.direction, sorted(ev.reset)
+        ('wall', -1, ['der(x)', 'der(y)'])
+        """
+        if name is None:
+            name = f"event{len(self.events) + 1}"
+        if not isinstance(name, str) or not _NAME_RE.match(name):
+            raise ModelError(f"model {self.name!r}: {name!r} is not a valid event name")
+        if any(e.name == name for e in self.events):
+            raise ModelError(f"model {self.name!r}: the event name {name!r} is used twice")
+        where = f"event {name!r}"
+        if isinstance(expr, ca.MX):
+            raise ModelError(f"model {self.name!r}, {where}: MX expressions are not supported; "
+                             "build it from the SX symbols the model returns")
+        try:
+            sx = ca.SX(expr) if not isinstance(expr, ca.SX) else expr
+        except Exception:  # noqa: BLE001 - turned into a daekit error
+            raise ModelError(f"model {self.name!r}, {where}: cannot convert "
+                             f"{type(expr).__name__} to a CasADi expression") from None
+        if sx.numel() != 1:
+            raise ModelError(
+                f"model {self.name!r}, {where}: the event function must be a scalar, got shape "
+                f"{sx.shape}; declare one event per condition"
+            )
+        sx = ca.densify(sx)
+        self._check_symbols(sx, where)
+        if direction not in (-1, 0, 1):
+            raise ModelError(
+                f"model {self.name!r}, {where}: direction must be +1 (rising), -1 (falling) or "
+                f"0 (both), got {direction!r}"
+            )
+        if not isinstance(terminal, (bool, np.bool_)):
+            raise ModelError(f"model {self.name!r}, {where}: terminal must be True or False, "
+                             f"got {terminal!r}")
+        resets: dict[str, ca.SX] = {}
+        for key, value in dict(reset or {}).items():
+            if not isinstance(key, str):
+                raise ModelError(f"model {self.name!r}, {where}: reset keys are names such as "
+                                 f"'der(x)' or 'p[0]', got {key!r}")
+            try:
+                elems = self.resolve(key)
+            except ModelError as exc:
+                raise ModelError(f"model {self.name!r}, {where}, reset {key!r}: {exc}") from None
+            for var, _i, _o in elems:
+                if var.kind not in ("state", "variable"):
+                    raise ModelError(
+                        f"model {self.name!r}, {where}: reset {key!r} names the {var.kind} "
+                        f"{var.name!r}; only states and their derivatives can be reset (a "
+                        "control is given, a parameter constant, an algebraic unknown follows "
+                        "from the equations)"
+                    )
+            try:
+                val = ca.SX(value) if not isinstance(value, ca.SX) else value
+            except Exception:  # noqa: BLE001 - turned into a daekit error
+                raise ModelError(f"model {self.name!r}, {where}, reset {key!r}: cannot convert "
+                                 f"{type(value).__name__} to a CasADi expression") from None
+            val = ca.densify(ca.vec(val))
+            if val.numel() == 1 and len(elems) > 1:
+                val = ca.repmat(val, len(elems), 1)
+            if val.numel() != len(elems):
+                raise ModelError(
+                    f"model {self.name!r}, {where}, reset {key!r}: {len(elems)} value(s) needed, "
+                    f"got {val.numel()}"
+                )
+            self._check_symbols(val, f"{where}, reset {key!r}")
+            bad = _nonfinite_constants(val)
+            if bad:
+                raise ModelError(f"model {self.name!r}, {where}, reset {key!r} contains the "
+                                 f"constant {bad[0]!r}")
+            for k, (var, i, o) in enumerate(elems):
+                el = var.element(i, o)
+                if el in resets:
+                    raise ModelError(f"model {self.name!r}, {where}: {el!r} is reset twice")
+                resets[el] = val[k]
+        ev = Event(name, sx, int(direction), bool(terminal), resets)
+        self.events.append(ev)
+        return ev
+
     # ------------------------------------------------------------------ flattened views
     @property
     def unknown_variables(self) -> list[Variable]:
@@ -399,7 +603,15 @@ class Model:
 
     @property
     def equation_names(self) -> list[str]:
-        return [e.element(i) for e in self.equations for i in range(e.size)]
+        """Element names of the equations, ``"rod"``, ``"newton[0]"``, ... (cached; do not
+        mutate)."""
+        if "equation_names" not in self._cache:
+            out: list[str] = []
+            for e in self.equations:
+                k = e.size
+                out += [e.name] if k == 1 else [f"{e.name}[{i}]" for i in range(k)]
+            self._cache["equation_names"] = out
+        return self._cache["equation_names"]
 
     @property
     def residual(self) -> ca.SX:
@@ -519,7 +731,8 @@ class Model:
             raise ModelError(f"model {self.name!r} has no variable {base!r} (known: {known})")
         if idx is not None and idx >= var.size:
             raise ModelError(
-                f"model {self.name!r}: {name!r} is out of range; {base!r} has {var.size} element(s)"
+                f"model {self.name!r}: {name!r} is out of range; {base!r} has "
+                f"{count(var.size, 'element')}"
             )
         if order > 0 and var.kind == "parameter":
             raise ModelError(f"model {self.name!r}: {name!r} is the derivative of a parameter")
@@ -672,8 +885,18 @@ def _zero_entries(sx: ca.SX) -> list[int]:
     present = np.zeros(n, dtype=bool)
     present[np.asarray(row, dtype=np.int64)] = True
     out = set(np.nonzero(~present)[0].tolist())
-    nz = sx.nonzeros()
-    out.update(int(r) for r, e in zip(row, nz, strict=True) if e.is_zero())
+    nz = sx.nz[:]  # whole vector: the nonzeros that depend on no symbol are constants
+    if nz.numel():
+        syms = ca.symvar(nz)
+        const = np.ones(nz.numel(), dtype=bool)
+        if syms:
+            dep, _ = ca.jacobian_sparsity(nz, ca.vertcat(*syms)).get_triplet()
+            const[np.asarray(dep, dtype=np.int64)] = False
+        k = np.nonzero(const)[0]
+        if k.size:
+            vals = np.asarray(ca.evalf(nz[k.tolist()]), dtype=float).ravel()
+            rows = np.asarray(row, dtype=np.int64)
+            out.update(rows[k[vals == 0.0]].tolist())
     return sorted(out)
 
 

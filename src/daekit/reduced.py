@@ -16,7 +16,22 @@ import numpy as np
 
 from .wording import count
 
-__all__ = ["ReducedDAE"]
+__all__ = ["ReducedDAE", "Numel"]
+
+
+class Numel:
+    """A read-only size attribute: the number of elements of the SX attribute ``attr``
+    (``nx = Numel("x")`` gives ``obj.nx == obj.x.numel()``), shared by the systems that
+    carry symbol vectors (this ReducedDAE, the OCP's augmented system)."""
+
+    def __init__(self, attr: str, doc: str = "") -> None:
+        self.attr = attr
+        self.__doc__ = doc or f"Number of elements of ``{attr}``."
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return int(getattr(obj, self.attr).numel())
 
 
 @dataclass
@@ -77,21 +92,10 @@ class ReducedDAE:
     stabilization: str | None = None
     info: dict = field(default_factory=dict)
 
-    @property
-    def nx(self) -> int:
-        return int(self.x.numel())
-
-    @property
-    def nz(self) -> int:
-        return int(self.z.numel())
-
-    @property
-    def nu(self) -> int:
-        return int(self.u.numel())
-
-    @property
-    def n_p(self) -> int:
-        return int(self.p.numel())
+    nx = Numel("x", "Number of differential states.")
+    nz = Numel("z", "Number of algebraic unknowns.")
+    nu = Numel("u", "Number of inputs (controls and input derivatives).")
+    n_p = Numel("p", "Number of parameters.")
 
     def dae_dict(self) -> dict:
         """The ``{'t','x','z','p','ode','alg'}`` dict of ``casadi.integrator`` (inputs u go
@@ -122,7 +126,9 @@ class ReducedDAE:
         return new
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
+        # private caches (``_initialize_cache``, ...) hold local functions and are rebuilt on
+        # first use: not pickled
+        state = {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
         if _casadi_context_open("pickle"):
             return state
         with ca.global_pickle_context():

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ModelError
+from .wording import count
 
 __all__ = ["sample"]
 
@@ -118,7 +119,8 @@ def sample(
             cols[name] = np.full(n, float(dist[1]))
             continue
         if len(dist) - 1 != nargs:
-            raise ModelError(f"sample: {name!r}: {kind!r} takes {nargs} number(s), got {dist!r}")
+            raise ModelError(f"sample: {name!r}: {kind!r} takes {count(nargs, 'number')}, "
+                             f"got {dist!r}")
         nums = dist[1:] if kind == "choice" else tuple(float(a) for a in dist[1:])
         if kind in ("uniform", "loguniform") and not nums[0] < nums[1]:
             raise ModelError(f"sample: {name!r}: {kind} needs lo < hi, got {dist!r}")

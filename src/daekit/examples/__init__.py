@@ -33,6 +33,14 @@ from .classic import (
     transistor_amplifier,
 )
 from .failures import f1, f2, f3, gear_petzold, iwata_nonlinear, oki_linear
+from .impacts import CRANE_END_STOP_INIT, crane_end_stop, pendulum_wall
+from .invariants import (
+    lifted_pendulum,
+    lifted_square,
+    quadrotor,
+    quadrotor_yaw_ocp,
+    rigid_body,
+)
 from .lecture import (
     DELTA_GAMMA,
     delta_robot,
@@ -55,6 +63,9 @@ from .mechanisms import (
 from .pendula import chained_pendula, pendulum_planar, planar_chain
 
 __all__ = [
+    "CRANE_END_STOP_INIT",
+    "crane_end_stop",
+    "pendulum_wall",
     "DELTA_ROBOT_DATA",
     "lagrangian_delta_robot",
     "lagrangian_delta_robot_home",
@@ -81,6 +92,11 @@ __all__ = [
     "gear_petzold",
     "iwata_nonlinear",
     "jay",
+    "lifted_pendulum",
+    "lifted_square",
+    "quadrotor",
+    "quadrotor_yaw_ocp",
+    "rigid_body",
     "l1",
     "l2",
     "l3",
@@ -128,6 +144,13 @@ def catalog() -> dict[str, CatalogEntry]:
         "pendulum_planar": CatalogEntry(
             pendulum_planar, 3, 2, "Hairer & Wanner, Solving ODEs II, ch. VII"
         ),
+        "pendulum_wall": CatalogEntry(
+            pendulum_wall, 3, 2, "planar pendulum with a wall at x = 0 (restitution 0.8)"
+        ),
+        "crane_end_stop": CatalogEntry(
+            lambda: crane_end_stop().model(), 3, 4,
+            "overhead crane: trolley end stop (restitution 0.5), terminal at rest",
+        ),
         "chained_pendula": CatalogEntry(
             lambda: chained_pendula(3), 7, 6, "Pryce, BIT 41 (2001); DAESA (p = 3)"
         ),
@@ -142,4 +165,12 @@ def catalog() -> dict[str, CatalogEntry]:
         "arevalo": CatalogEntry(arevalo, 3, 2, "E3: C. Arevalo (1995), particle on a circle"),
         "chemakzo": CatalogEntry(chemakzo, 1, 5, testset + ", chemakzo"),
         "transistor_amplifier": CatalogEntry(transistor_amplifier, 1, 5, testset + ", transamp"),
+        "rigid_body": CatalogEntry(
+            rigid_body, 0, 6, "free rigid body, unit quaternion (reference-problems.md, sec. 7)"
+        ),
+        "lifted_pendulum": CatalogEntry(
+            lifted_pendulum, 0, 2, "pendulum lifted to (sin, cos): Hairer & Wanner, ch. VII"
+        ),
+        "lifted_square": CatalogEntry(lifted_square, 0, 1, "x' = x^2 lifted with w = x^2"),
+        "quadrotor": CatalogEntry(quadrotor, 0, 12, "quadrotor, quaternion attitude"),
     }

@@ -19,6 +19,7 @@ from scipy.special import ellipj, ellipk
 __all__ = [
     "pendulum_planar",
     "pendulum_planar_period",
+    "pendulum_wall_impacts",
     "gear_petzold",
     "oki_linear",
     "iwata_nonlinear",
@@ -82,6 +83,30 @@ def pendulum_planar(t, theta0: float, g: float = 9.81, L: float = 1.0) -> dict[s
 def pendulum_planar_period(theta0: float, g: float = 9.81, L: float = 1.0) -> float:
     """Period ``4 K(k^2) / w`` of the planar pendulum released at rest from ``theta0``."""
     return float(4.0 * ellipk(np.sin(theta0 / 2.0) ** 2) / np.sqrt(g / L))
+
+
+def pendulum_wall_impacts(n: int, e: float, g: float = 9.81, L: float = 1.0) -> np.ndarray:
+    """The first ``n`` impact times of the planar pendulum released at rest from horizontal
+    (``x = L``, ``y = 0``) with a wall at ``x = 0`` (the bottom) and restitution ``e``.
+
+    The first impact is at a quarter period of the amplitude ``pi/2``,
+    ``K(1/2) / w`` (``w = sqrt(g/L)``, ``K`` the complete elliptic integral of the first kind,
+    parameter ``m = sin^2(theta/2)``). The impact scales the velocity by ``e``, hence the
+    kinetic energy at the bottom by ``e^2``: the next amplitude has
+    ``1 - cos(theta_k) = e^2 (1 - cos(theta_{k-1}))``, and the next impact comes half a period
+    of the new amplitude, ``2 K(sin^2(theta_k / 2)) / w``, later.
+
+    >>> t = pendulum_wall_impacts(3, 1.0)
+    >>> bool(abs(t[0] - 0.5919604868940593) < 1e-15), bool(abs(t[1] - 3 * t[0]) < 1e-14)
+    (True, True)
+    """
+    w = np.sqrt(g / L)
+    theta = np.pi / 2.0
+    out = [float(ellipk(np.sin(theta / 2.0) ** 2) / w)]
+    for _ in range(int(n) - 1):
+        theta = float(np.arccos(1.0 - e * e * (1.0 - np.cos(theta))))
+        out.append(out[-1] + float(2.0 * ellipk(np.sin(theta / 2.0) ** 2) / w))
+    return np.array(out[: int(n)])
 
 
 def gear_petzold(t, eta: float = -2.0) -> dict[str, np.ndarray]:

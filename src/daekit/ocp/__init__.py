@@ -4,10 +4,17 @@ The model is reduced to index 1 (or given as a :class:`~daekit.reduced.ReducedDA
 optimal control problem is transcribed (direct collocation with Radau IIA by default, or
 multiple shooting on IDAS) and solved with IPOPT through CasADi. The consistency conditions
 (invariants) are imposed at the initial time only, and boundary conditions that are redundant
-with them (full periodicity of a constrained mechanism) are detected and dropped (a dropped
-condition the solution turns out to violate is imposed in a second solve; conditions that
-contradict each other are named instead and nothing is solved); the solution's
-:attr:`OCPSolution.report` says what was done.
+with them (full periodicity of a constrained mechanism) are detected and dropped where the
+rank decision is valid (a dropped condition the solution turns out to violate is imposed in a
+second solve); IPOPT always runs unless the conditions are proven contradictory (then they are
+named and nothing is solved); the solution's :attr:`OCPSolution.report` says what was done.
+
+Layout: :class:`OCP` is the statement builder; :meth:`OCP.compile` freezes it into a
+:class:`~daekit.ocp.compiled.Problem`, which :mod:`~daekit.ocp.guess`,
+:mod:`~daekit.ocp.boundary` (which conditions to impose), :mod:`~daekit.ocp.collocation` and
+:mod:`~daekit.ocp.shooting` (sharing :mod:`~daekit.ocp.transcription`), :mod:`~daekit.ocp.run`
+(one IPOPT run), :mod:`~daekit.ocp.resolve` (the second solve) and :mod:`~daekit.ocp.report`
+read; :mod:`~daekit.ocp.solution` builds the :class:`OCPSolution`.
 
 Example: swing a planar pendulum (index 3 in Cartesian coordinates: unit mass and rod, a
 tangential force ``u``) from rest at the bottom to rest at 30 degrees in 2 s with the least
@@ -58,6 +65,7 @@ import numpy as np
 
 from ..errors import OCPError
 from ..reduced import ReducedDAE
+from ..wording import count
 from .compiled import Problem, compile_problem
 from .consistency import BoundaryAnalysis
 from .problem import Augmented, augment
@@ -89,6 +97,48 @@ class Free:
             raise OCPError(f"Free({self.lo}, {self.hi}, guess={self.guess}): guess out of bounds")
 
 
+def _sign_names(up_to_sign, names: list[str], what: str) -> set[str]:
+    """The names (among ``names``) meant by ``up_to_sign``: None/False, True, a name or a list."""
+    if up_to_sign is None or up_to_sign is False:
+        return set()
+    if up_to_sign is True:
+        return set(names)
+    chosen = [up_to_sign] if isinstance(up_to_sign, str) else list(up_to_sign)
+    bad = [n for n in chosen if n not in names]
+    if bad:
+        raise OCPError(
+            f"{what}: up_to_sign names {bad}, which are not among the conditions given "
+            f"({', '.join(names)}); name a vector of the conditions, e.g. up_to_sign='q'"
+        )
+    return set(chosen)
+
+
+def _up_to_sign_rows(kind: str, name: str, els: list[str], vals, names: dict) -> list:
+    """Boundary rows imposing ``v = ±value`` (final) or ``v(T) = ±v(0)`` (periodic) on the
+    vector ``name``: entries ``(kind, label, expr, val)`` whose ``val`` is a tuple
+    ``("normal", b)`` (the row ``b . v(T)``) or ``("minor",)`` (``v_i(T) v_j(0) - v_j(T)
+    v_i(0)`` for the pair ``expr = (v_i, v_j)``)."""
+    n = len(els)
+    if n < 2:
+        raise OCPError(
+            f"ocp.{kind}: up_to_sign={name!r} needs a vector (a quaternion, say); {name!r} has "
+            "one element: impose its value, or its square, instead"
+        )
+    ex = ca.vertcat(*[names[e] for e in els])
+    if kind == "periodic":
+        return [(kind, f"periodic {name} = ±{name}(0) ({els[i]}, {els[j]})",
+                 ca.vertcat(ex[i], ex[j]), ("minor",))
+                for i in range(n) for j in range(i + 1, n)]
+    a = np.asarray(vals, dtype=float)
+    if not np.linalg.norm(a) > 0:
+        raise OCPError(f"ocp.{kind}: up_to_sign={name!r} needs a nonzero value")
+    # an orthonormal basis of the complement of a: the last n - 1 columns of Q in a = Q R
+    B = np.linalg.qr(a.reshape(-1, 1), mode="complete")[0][:, 1:]
+    shown = ", ".join(f"{x:.6g}" for x in a)
+    return [(kind, f"{kind} {name} = ±({shown}) [{k + 1} of {n - 1}]", ex, ("normal", B[:, k]))
+            for k in range(n - 1)]
+
+
 def _vec(val, n: int, what: str) -> np.ndarray:
     try:
         arr = np.asarray(ca.DM(val) if isinstance(val, ca.DM) else val, dtype=float).ravel()
@@ -97,7 +147,7 @@ def _vec(val, n: int, what: str) -> np.ndarray:
     if arr.size == 1:
         arr = np.full(n, float(arr[0]))
     if arr.size != n:
-        raise OCPError(f"{what}: expected {n} value(s), got {arr.size}")
+        raise OCPError(f"{what}: expected {count(n, 'value')}, got {arr.size}")
     return arr
 
 
@@ -290,11 +340,12 @@ class OCP:
         self._path_user.append((e, lb_, ub_, label))
         return self
 
-    def _conditions(self, kind: str, values: dict) -> None:
+    def _conditions(self, kind: str, values: dict, up_to_sign=None) -> None:
         if not isinstance(values, dict):
             raise OCPError(
                 f"ocp.{kind}(...) takes a dict {{name: value}}, got {type(values).__name__}"
             )
+        signed = _sign_names(up_to_sign, list(values), f"ocp.{kind}")
         for name, val in values.items():
             els = self._aug.elements(name, f"ocp.{kind}({{{name!r}: ...}})")
             vals = _vec(val, len(els), f"ocp.{kind}({{{name!r}: ...}})")
@@ -303,6 +354,9 @@ class OCP:
                     f"ocp.{kind}({{{name!r}: {val!r}}}): boundary values must be finite "
                     "numbers; give the value, or leave the condition out"
                 )
+            if name in signed:
+                self._bc_user.extend(_up_to_sign_rows(kind, name, els, vals, self._aug.names))
+                continue
             for e, v in zip(els, vals, strict=True):
                 self._bc_user.append((kind, f"{kind} {e}", self._aug.names[e], float(v)))
 
@@ -311,17 +365,38 @@ class OCP:
         self._conditions("initial", values)
         return self
 
-    def final(self, values: dict) -> OCP:
-        """Conditions at ``t = T``: ``{name: value}``."""
-        self._conditions("final", values)
+    def final(self, values: dict, up_to_sign=None) -> OCP:
+        """Conditions at ``t = T``: ``{name: value}``.
+
+        ``up_to_sign``: a name of ``values`` (or a list of them, or True for all) whose value
+        is imposed up to its sign, ``v(T) = ±value``: a unit quaternion and its negative are
+        the same rotation. Imposed as ``v(T)`` parallel to ``value`` (``B^T v(T) = 0`` with
+        ``B`` an orthonormal basis of the complement of ``value``: ``n - 1`` conditions); with
+        the invariant ``|q| = 1`` that leaves exactly ``q(T) = ±value``. Without it, the sign
+        given decides which way round the attitude turns.
+        """
+        self._conditions("final", values, up_to_sign)
         return self
 
-    def periodic(self, names) -> OCP:
-        """``v(T) = v(0)`` for each named variable (``["p", "der(p)"]``)."""
+    def periodic(self, names, up_to_sign=None) -> OCP:
+        """``v(T) = v(0)`` for each named variable (``["p", "der(p)"]``).
+
+        ``up_to_sign``: names among ``names`` (or True for all) for which ``v(T) = ±v(0)``
+        suffices (``v(T)`` parallel to ``v(0)``: the 2-by-2 minors
+        ``v_i(T) v_j(0) - v_j(T) v_i(0)``, of which the boundary analysis keeps the ``n - 1``
+        independent ones). Periodicity on a unit quaternion is redundant with its norm (held
+        at ``t = 0``, kept by the dynamics) either way; the analysis drops the implied row.
+        """
         if isinstance(names, str):
             names = [names]
+        signed = _sign_names(up_to_sign, list(names), "ocp.periodic")
         for name in names:
-            for e in self._aug.elements(name, f"ocp.periodic([{name!r}])"):
+            els = self._aug.elements(name, f"ocp.periodic([{name!r}])")
+            if name in signed:
+                self._bc_user.extend(_up_to_sign_rows("periodic", name, els, None,
+                                                      self._aug.names))
+                continue
+            for e in els:
                 self._bc_user.append(("periodic", f"periodic {e}", self._aug.names[e], 0.0))
         return self
 
@@ -462,8 +537,26 @@ class OCP:
         ba = analyze(prob, g)
         self._last_boundary = ba
         sol = solve_once(prob, g, ba, redundancy, check, t_start)
+        if (not sol.success and redundancy == "drop" and ba.selectors and not ba.proven
+                and sol.stats.get("boundary_selectors_imposed")):
+            # the branch inequalities can trap IPOPT when the guess lies on another branch:
+            # once more without them (the dropped conditions are then checked, and imposed by
+            # the re-solve if violated)
+            first = sol
+            sol = solve_once(prob, g, ba, redundancy, check, _time.perf_counter(),
+                             selectors=False)
+            retry = {"status": first.status, "iter_count": first.stats.get("iter_count")}
+        else:
+            retry = None
         if redundancy == "drop" and sol.success and ba.dropped:
             sol = resolve_violated(prob, sol, ba, check, make_guess)
+        if retry is not None:
+            sol.stats["first_with_branch_inequalities"] = retry
+            lines = sol.report.split("\n")
+            lines.insert(1, f"First run with the branch inequalities: {retry['status']} after "
+                            f"{retry['iter_count']} iterations (the guess lies on another "
+                            "branch); run again without them.")
+            sol.report = "\n".join(lines)
         if not sol.success and raise_on_failure:
             raise OCPError(sol.report)
         return sol

@@ -33,13 +33,14 @@ import numpy as np
 
 from .consistency import (
     BoundaryAnalysis,
-    _rows_of,
     analyze_boundary,
     conflicting_conditions,
     project_ends,
+    project_ends_many,
+    rows_of,
 )
 
-__all__ = ["analyze", "end_points"]
+__all__ = ["analyze", "end_points", "columns"]
 
 
 def end_points(g):
@@ -78,11 +79,9 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     man = prob.ends_fun
     y = np.concatenate([a0, aT])
     sc = np.maximum(1.0, np.abs(y))
-    generic = []
-    for _ in range(2):
-        yp = y + 0.05 * sc * rng.standard_normal(y.size)
-        b0, bT, _r = project_ends(man, yp[:n], yp[n:], p, T)
-        generic.append((b0, bT))
+    yps = [y + 0.05 * sc * rng.standard_normal(y.size) for _ in range(2)]
+    generic = [(b0, bT) for b0, bT, _r in
+               project_ends_many(columns(man), [(yp[:n], yp[n:]) for yp in yps], p, T)]
 
     def jacs(e0, eT):
         return (np.asarray(prob.bc_jac(e0, eT, p, T)), np.asarray(prob.man_jac(0.0, e0, p)),
@@ -100,8 +99,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
                               preference=prob.bc_pref, others=[at_a], forced=list(forced))
         ba.ranks = probe.ranks
     else:
-        ba = analyze_boundary(labels, *at_a, preference=prob.bc_pref, others=at_b,
-                              forced=list(forced))
+        ba = probe  # the same call (it returns a new record; computed once)
     ba.preference = list(prob.bc_pref)
     ba.forced = [int(i) for i in forced]
     # the manifold counts w as free directions; report the state-space dimension
@@ -166,12 +164,12 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
     the manifold (the pole upright at rest: ``p[1] = L`` touches the circle there), impose that
     point instead: the values of an independent subset of the states at it (regular, the same
     point set); the end's own conditions are checked at the solution."""
-    from .compiled import _levels
+    from .compiled import derivative_levels
     from .consistency import equilibrate, independent_rows, null_basis
 
     a = prob.aug
     n = a_pt[0].size
-    lev = _levels(a)
+    lev = derivative_levels(a)
     names = a.x_names
     for e, kind in enumerate(("initial", "final")):
         idx = [i for i, k in enumerate(prob.bc_kinds) if k == kind]
@@ -185,7 +183,7 @@ def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
         if dim <= 0 or sv.size < dim or sv[dim - 1] > 1e-4:
             continue  # the end's conditions do not fix the point, or fix it regularly
         rows = list(range(e * nman, (e + 1) * nman)) + [2 * nman + i for i in idx]
-        sub = _rows_of(prob.ends_fun, rows)
+        sub = rows_of(prob.ends_fun, rows)
         y = np.concatenate(a_pt)
         isolated = True
         for _ in range(3):
@@ -226,7 +224,7 @@ def _bound_conflicts(prob, ba: BoundaryAnalysis) -> None:
     """Conditions that fix one variable to a value outside its bounds: a proof."""
     a = prob.aug
     for c in prob.conditions:
-        if c.kind == "periodic":
+        if c.kind == "periodic" or isinstance(c.value, tuple):  # (tuple: up to sign)
             continue
         w = a.which(c.expr)
         if w is None or w[0] not in prob.lb:
@@ -240,23 +238,49 @@ def _bound_conflicts(prob, ba: BoundaryAnalysis) -> None:
         ba.proven = True
 
 
+def columns(fun, rows=None):
+    """The CasADi end-point function ``fun(v0, vT, p, T) -> (r, J)`` evaluated on end points
+    given as columns, in one mapped call, in the form :func:`project_ends_many` takes:
+    residuals ``(m, k)`` and Jacobians ``(m, k, 2 n)`` (only the rows ``rows`` when given).
+
+    >>> import casadi as ca, numpy as np
+    >>> v0, vT = ca.SX.sym("v0", 2), ca.SX.sym("vT", 2)
+    >>> r = ca.vertcat(ca.sumsqr(v0) - 1, vT[0] - v0[0])
+    >>> f = ca.Function("f", [v0, vT, ca.SX.sym("p", 0), ca.SX.sym("T")],
+    ...                 [r, ca.jacobian(r, ca.vertcat(v0, vT))])
+    >>> R, J = columns(f)(np.array([[1.0, 2.0], [0, 0]]), np.zeros((2, 2)), [], 0.0)
+    >>> R.tolist(), J.shape
+    ([[0.0, 3.0], [-1.0, -2.0]], (2, 2, 4))
+    """
+    def sub(V0, VT, p, T):
+        k = V0.shape[1]
+        R, J = fun(V0, VT, p, T)
+        R = np.asarray(R, float).reshape(-1, k)
+        J = np.asarray(J, float).reshape(R.shape[0], k, 2 * V0.shape[0])
+        return (R, J) if rows is None else (R[rows], J[rows])
+
+    return sub
+
+
 def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
     """Dropped conditions that select a branch of the set where the kept ones hold become
     inequalities ``|c| <= gap / 2`` (see the module docstring)."""
     n = a_pt[0].size
     rows = list(range(2 * nman)) + [2 * nman + i for i in ba.kept]
     pinned = {k for k, *_ in ba.pins}
-    sub0 = _rows_of(prob.ends_fun, rows)
     pin_rows = [(0 if k == "initial" else n) + i for k, i, _, _ in ba.pins]
-    pin_vals = np.array([v for _, _, v, _ in ba.pins])
+    pin_vals = np.array([v for _, _, v, _ in ba.pins]).reshape(-1, 1)
 
-    def sub(v0, vT, p_, T_):
-        r, J = sub0(v0, vT, p_, T_)
+    sub0 = columns(prob.ends_fun, rows)
+
+    def sub(V0, VT, p_, T_):  # all starts at once (columns): one mapped evaluation
+        k = V0.shape[1]
+        R, J = sub0(V0, VT, p_, T_)
         if not pin_rows:
-            return r, J
-        y_ = np.concatenate([v0, vT])
-        E = np.eye(2 * n)[pin_rows]
-        return np.concatenate([r, y_[pin_rows] - pin_vals]), np.vstack([J, E])
+            return R, J
+        Y_ = np.vstack([V0, VT])
+        E = np.broadcast_to(np.eye(2 * n)[pin_rows][:, None, :], (len(pin_rows), k, 2 * n))
+        return np.vstack([R, Y_[pin_rows] - pin_vals]), np.concatenate([J, E], axis=0)
     y = np.concatenate(a_pt)
     sc = np.maximum(1.0, np.abs(y))
     starts = [guess_pt, (2 * a_pt[0] - guess_pt[0], 2 * a_pt[1] - guess_pt[1]),
@@ -265,8 +289,7 @@ def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
         yp = y + amp * sc * rng.standard_normal(y.size)
         starts.append((yp[:n], yp[n:]))
     others = []
-    for s0, sT in starts:
-        e0, eT, res = project_ends(sub, s0, sT, p, T, max_iter=30)
+    for e0, eT, res in project_ends_many(sub, starts, p, T, max_iter=30):
         if res < 1e-9:
             others.append(np.asarray(prob.bc_fun(e0, eT, p, T), float).ravel())
     if not others:
@@ -284,7 +307,8 @@ def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
             "where the imposed conditions hold there are other branches on which "
             + ", ".join(ba.labels[i] for i, _, _ in ba.selectors)
             + " do" + ("es" if len(ba.selectors) == 1 else "")
-            + " not hold (they select a branch, |c| up to "
-            + ", ".join(f"{2 * hi:.3g}" for _, _, hi in ba.selectors)
-            + " elsewhere): checked at the solution and imposed by a re-solve if violated"
+            + " not hold: kept as the inequalities |c| <= "
+            + ", ".join(f"{hi:.3g}" for _, _, hi in ba.selectors)
+            + " (half the distance to the nearest other branch), which exclude those branches,"
+            " are inactive at the solution and keep the constraint Jacobian regular"
         )

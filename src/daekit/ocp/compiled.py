@@ -93,6 +93,25 @@ class Problem:
         return [f"equation {n!r}" for n in self.alg_names] + [
             f"invariant {n!r}" for n in self.aug.inv_names]
 
+    def model_fun(self) -> ca.Function:
+        """``(t, x, z, w, p) -> (ode, alg, lagrange)``, built once per compiled problem (the
+        transcriptions, the guess and the benchmarks share it)."""
+        f = self.__dict__.get("_model_fun")
+        if f is None:
+            a = self.aug
+            f = ca.Function("f", [a.t, a.x, a.z, a.w, a.p], [a.ode, a.alg, self.lagrange])
+            self.__dict__["_model_fun"] = f
+        return f
+
+    def inv_fun(self) -> ca.Function:
+        """``(t, x, z, w, p) -> invariants``, built once per compiled problem."""
+        f = self.__dict__.get("_inv_fun")
+        if f is None:
+            a = self.aug
+            f = ca.Function("inv", [a.t, a.x, a.z, a.w, a.p], [a.inv])
+            self.__dict__["_inv_fun"] = f
+        return f
+
     def simple_bounds(self):
         return (self.lb["x"], self.ub["x"], self.lb["z"], self.ub["z"],
                 self.lb["w"], self.ub["w"])
@@ -139,7 +158,7 @@ class Problem:
                   None, "boundary", [labels[i] + " (branch)" for i, _, _ in selectors])
 
 
-def _levels(a: Augmented) -> dict[tuple[str, int], int]:
+def derivative_levels(a: Augmented) -> dict[tuple[str, int], int]:
     """Derivative level of every decision symbol: 0 for positions, 1 for velocities...
 
     A state ``x_i`` with ``x_j' = x_i`` (``p' = v``, or the state ``der(p)``) is one level
@@ -182,7 +201,7 @@ def _levels(a: Augmented) -> dict[tuple[str, int], int]:
     for i, nm in enumerate(a.w_names):
         k = by_name(nm)
         lev[("w", i)] = 0 if k is None else k
-    for i in range(a.np_):
+    for i in range(a.n_p):
         lev[("p", i)] = 0
     return lev
 
@@ -201,7 +220,7 @@ def _preference(a: Augmented, conditions: list[Condition]) -> list[int]:
     """Order of preference of the boundary conditions when an independent subset is chosen:
     position-level before velocity-level (the highest derivative level of the symbols a
     condition involves), then the order given."""
-    lev = _levels(a)
+    lev = derivative_levels(a)
     keys = []
     for i, c in enumerate(conditions):
         ws = [a.which(s) for s in ca.symvar(c.expr)]
@@ -265,6 +284,10 @@ def compile_problem(ocp) -> Problem:
     for c in conds:
         e0 = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(0.0, v0)])[0]
         eT = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0]
+        if isinstance(c.value, tuple):  # up to sign: b . v(T), or a minor of [v(T) v(0)]
+            rows.append(ca.dot(ca.DM(c.value[1]), eT) if c.value[0] == "normal" else
+                        eT[0] * e0[1] - eT[1] * e0[0])
+            continue
         rows.append(e0 - c.value if c.kind == "initial" else
                     eT - c.value if c.kind == "final" else eT - e0)
     bc = ca.vertcat(*rows) if rows else ca.SX(0, 1)

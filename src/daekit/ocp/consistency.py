@@ -46,7 +46,8 @@ import numpy as np
 import scipy.linalg as sla
 
 __all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
-           "project_ends", "restricted_jacobian", "conflicting_conditions", "equilibrate"]
+           "project_ends", "project_ends_many", "restricted_jacobian", "conflicting_conditions",
+           "equilibrate"]
 
 
 @dataclass
@@ -348,7 +349,73 @@ def project_ends(fun, v0, vT, p, T, tol: float = 1e-10, max_iter: int = 60):
     return y[:n], y[n:], worst
 
 
-def _rows_of(fun, rows):
+def project_ends_many(fun, starts, p, T, tol: float = 1e-10, max_iter: int = 60) -> list:
+    """:func:`project_ends` from several starts at once, one evaluation of ``fun`` per step
+    for all of them.
+
+    ``fun(V0, VT, p, T)`` takes the end points as columns (``n x k``) and returns the residuals
+    ``(m, k)`` and the Jacobians ``(m, k, 2 n)``; a CasADi function of ``(v0, vT, p, T)``
+    evaluates column-stacked arguments in one (mapped) call. Each start follows exactly the
+    steps :func:`project_ends` takes from it (its own row scaling, least-norm Gauss-Newton
+    steps, step halving); only the evaluations are batched. Returns ``[(v0, vT, largest
+    scaled residual)]`` in the order of ``starts``.
+
+    >>> import numpy as np
+    >>> def circle(V0, VT, p, T):  # |v0| = 1 (VT is not involved)
+    ...     r = (V0**2).sum(axis=0, keepdims=True) - 1.0
+    ...     J = np.concatenate([2 * V0.T, 0 * VT.T], axis=1)[None]
+    ...     return r, J
+    >>> out = project_ends_many(circle, [(np.array([2.0, 0]), np.zeros(2)),
+    ...                                  (np.array([0, 0.5]), np.zeros(2))], None, 0.0)
+    >>> [np.round(v0, 12).tolist() for v0, _, _ in out]
+    [[1.0, 0.0], [0.0, 1.0]]
+    """
+    k = len(starts)
+    if k == 0:
+        return []
+    n = np.size(starts[0][0])
+    Y = np.array([np.concatenate([np.ravel(a), np.ravel(b)]) for a, b in starts],
+                 float).T.reshape(2 * n, k)
+
+    def ev(Yc):
+        R, J = fun(Yc[:n], Yc[n:], p, T)
+        kc = Yc.shape[1]
+        R = np.asarray(R, float).reshape(-1, kc)
+        return R, np.asarray(J, float).reshape(R.shape[0], kc, 2 * n)
+
+    R0, J0 = ev(Y)
+    if R0.shape[0] == 0:
+        return [(Y[:n, i].copy(), Y[n:, i].copy(), 0.0) for i in range(k)]
+    nrm = np.linalg.norm(J0, axis=2)  # (m, k)
+    sc = 1.0 / np.where(nrm > 1e-300, nrm, 1.0)
+    R, J = sc * R0, sc[:, :, None] * J0
+    active = list(range(k))
+    for _ in range(max_iter):
+        active = [i for i in active if not np.max(np.abs(R[:, i])) < tol]
+        if not active:
+            break
+        nr = {i: float(np.linalg.norm(R[:, i])) for i in active}
+        d = {i: np.linalg.lstsq(J[:, i], -R[:, i], rcond=1e-12)[0] for i in active}
+        step = dict.fromkeys(active, 1.0)
+        searching, stopped = list(active), []
+        while searching:
+            Yn = np.stack([Y[:, i] + step[i] * d[i] for i in searching], axis=1)
+            Rn, Jn = ev(Yn)
+            still = []
+            for c, i in enumerate(searching):
+                rn = sc[:, i] * Rn[:, c]
+                if np.all(np.isfinite(rn)) and np.linalg.norm(rn) < nr[i]:
+                    Y[:, i], R[:, i], J[:, i] = Yn[:, c], rn, sc[:, i, None] * Jn[:, c]
+                    continue
+                step[i] *= 0.5
+                (still if step[i] > 1e-6 else stopped).append(i)
+            searching = still
+        active = [i for i in active if i not in stopped]
+    return [(Y[:n, i].copy(), Y[n:, i].copy(), float(np.max(np.abs(R[:, i]), initial=0.0)))
+            for i in range(k)]
+
+
+def rows_of(fun, rows):
     """``fun`` restricted to the residual rows ``rows`` (for :func:`project_ends`)."""
     rows = np.asarray(rows, dtype=int)
 
@@ -404,7 +471,7 @@ def conflicting_conditions(
         rows = (list(range(n_fixed)) if fixed else []) + [n_fixed + i for i in conds]
         if not rows:
             return True
-        sub = _rows_of(fun, rows)
+        sub = rows_of(fun, rows)
         for a, b in starts:
             lim = tol * max(1.0, float(np.max(np.abs(np.concatenate([a, b])), initial=0.0)))
             if project_ends(sub, a, b, p, T)[2] <= lim:

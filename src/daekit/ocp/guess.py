@@ -11,7 +11,12 @@ their own grid:
   see :class:`_GuessSimulator`). Should the integration fail, the rest of the guess is a
   straight line to the nearest point that satisfies the algebraic equations, the invariants
   and the final conditions at ``t = T`` (held constant when there is no such point nearby);
-  the guess's note (in the report) says so.
+  the guess's note (in the report) says so. When the simulation runs through but does not
+  reach the final conditions (a pendulum to be swung up stays hanging), the guess *blends*
+  from the initial point to the consistent final point nearest the simulation's end, along
+  the invariant manifold (:func:`_manifold_blend`: a small least-squares NLP for states,
+  algebraic unknowns and controls on the interval boundaries), so that the default guess
+  respects the boundary conditions.
 - a :class:`daekit.Trajectory` from :func:`daekit.simulate` (the user's own simulation with
   the controls of their choice): its values, read by the original model's names, are
   interpolated linearly onto the NLP's grid.
@@ -42,6 +47,7 @@ class Guess:
     V: np.ndarray | None = None
     key: tuple | None = None
     note: str = ""
+    lam: tuple | None = None  # (lam_x, lam_g) of a previous solution: IPOPT's warm start
 
 
 def _interp_fun(t: np.ndarray, X: np.ndarray, Z: np.ndarray, W: np.ndarray):
@@ -81,7 +87,7 @@ def make_guess(prob, guess) -> Guess:
         tt = guess.t * (T / guess.T)
         p = guess._P.copy()
         return Guess(_interp_fun(tt, guess._X, guess._Z, guess._W), T, p, guess._V, guess._key,
-                     "warm start from a previous solution")
+                     "warm start from a previous solution", getattr(guess, "_lam", None))
     if isinstance(guess, Trajectory):
         if guess.t.size < 1:
             raise OCPError("solve(guess=trajectory): the trajectory is empty")
@@ -113,7 +119,7 @@ def make_guess(prob, guess) -> Guess:
                     w_call[w[1]] = (val, k, len(els))
                 continue
             v = np.broadcast_to(np.asarray(val, float).ravel(), (len(els),))[k]
-            {"x": xg, "z": zg, "w": w_const}.get(w[0], np.zeros(a.np_ + 1))[w[1]] = v
+            {"x": xg, "z": zg, "w": w_const}.get(w[0], np.zeros(a.n_p + 1))[w[1]] = v
     for c in prob.conditions:
         w = a.which(c.expr)
         if c.kind == "initial" and w is not None and w[0] == "x":
@@ -138,11 +144,25 @@ def make_guess(prob, guess) -> Guess:
     sim = _GuessSimulator(a, tau, p)
     x, z = x0, z0
     failed = None
+    whole = None
+    if not w_call and N > 1:
+        # constant controls: one integration over the whole horizon with outputs at every grid
+        # time (measured: 100 interval calls cost 0.05-0.08 s); on any failure the interval
+        # by interval loop below runs and finds where it fails
+        grid = tuple(float(v) for v in ((np.arange(N).reshape(-1, 1) + tau) / N).ravel())
+        try:
+            with quiet():
+                whole = sim.horizon(x, z, w_at(0.5 * T / N), T, grid)
+        except RuntimeError:
+            whole = None
     with quiet():  # SUNDIALS' messages on a failed interval (set up once, not per interval)
         for k in range(N):
             tk, h = k * T / N, T / N
             wk = w_at(tk + 0.5 * h)
-            if failed is None:
+            if whole is not None:
+                cols = slice(k * tau.size, (k + 1) * tau.size)
+                xf, zf = whole[0][:, cols], whole[1][:, cols]
+            elif failed is None:
                 try:
                     xf, zf = sim.interval(x, z, wk, tk, h)
                 except RuntimeError as exc:
@@ -199,11 +219,18 @@ def make_guess(prob, guess) -> Guess:
 
 
 #: Largest number of times of the manifold blend (the guess is interpolated in between).
-BLEND_NODES = 51
+#: Measured, IPOPT iterations of the OCP with 26 / 51 nodes: cart-pole swing-up 9 / 32 (full
+#: state) and 10 / 14 (the user's form), Betts 10.103 14 / 13, crane 20 / 19, planar swing,
+#: 3D pendulum (periodic, rest to rest) and delta robot equal; the same objectives; the blend
+#: itself costs about half.
+BLEND_NODES = 26
 #: Weight of the OCP's own integral objective in the blend (prefers paths the controls can
 #: afford; measured on Betts 10.103 with the minimal index-1 form: 815 IPOPT iterations to a
 #: far worse local optimum without it, 13 to the published one with it).
 BLEND_LAGRANGE = 1e-3
+#: Symbolic type of the blend NLP ("SX": expanded; "MX": one mapped model call, cheaper to
+#: build but measured slower overall on the cart-pole, 101 blend iterations).
+BLEND_SYMBOLIC = "SX"
 
 
 def _final_miss(prob, x, z, w, p, T) -> float:
@@ -234,9 +261,10 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
     K = ts.size
     if K < 3 or a.nx == 0:
         return None
-    X = ca.SX.sym("X", a.nx, K)
-    Z = ca.SX.sym("Z", a.nz, K)
-    Wv = ca.SX.sym("W", a.nw, K)
+    S = ca.MX if BLEND_SYMBOLIC == "MX" else ca.SX
+    X = S.sym("X", a.nx, K)
+    Z = S.sym("Z", a.nz, K)
+    Wv = S.sym("W", a.nw, K)
     W0 = np.asarray(Ws, float).reshape(K, a.nw).T
     sc = np.maximum(1.0, np.maximum(np.abs(x0), np.abs(xe)))
     P = np.repeat(np.reshape(p, (-1, 1)), K, 1)
@@ -361,13 +389,14 @@ class _GuessSimulator:
 
     def __init__(self, a, tau: np.ndarray, p: np.ndarray) -> None:
         self.a, self.tau, self.p = a, np.asarray(tau, float), np.asarray(p, float)
-        self._F: dict[bool, object] = {}
+        self._F: dict[tuple, object] = {}
         if a.nz:
             self.alg = ca.Function("alg_z", [a.t, a.x, a.z, a.w, a.p],
                                    [a.alg, ca.jacobian(a.alg, a.z)])
 
-    def _integrator(self, calc_ic: bool):
-        if calc_ic not in self._F:
+    def _integrator(self, calc_ic: bool, grid: tuple | None = None):
+        grid = tuple(map(float, self.tau)) if grid is None else grid
+        if (calc_ic, grid) not in self._F:
             a = self.a
             tk, h, s = ca.SX.sym("tk"), ca.SX.sym("h"), ca.SX.sym("s")
             ode, alg = ca.substitute([a.ode, a.alg], [a.t], [tk + h * s])
@@ -377,9 +406,9 @@ class _GuessSimulator:
                 dae.update(z=a.z, alg=alg)
                 opts["calc_ic"] = calc_ic
             plugin = "idas" if a.nz else "cvodes"
-            self._F[calc_ic] = ca.integrator("guess_sim", plugin, dae, 0.0,
-                                             list(map(float, self.tau)), opts)
-        return self._F[calc_ic]
+            self._F[calc_ic, grid] = ca.integrator("guess_sim", plugin, dae, 0.0, list(grid),
+                                                   opts)
+        return self._F[calc_ic, grid]
 
     def _newton_z(self, t: float, x, z, w):
         """Algebraic unknowns consistent with ``x`` and the control ``w`` (None if Newton fails)."""
@@ -401,7 +430,16 @@ class _GuessSimulator:
 
     def interval(self, x, z, w, tk: float, h: float):
         """``(X, Z)`` at the points ``tk + h tau``; RuntimeError when the integration fails."""
+        return self._integrate(x, z, w, tk, h, None)
+
+    def horizon(self, x, z, w, T: float, grid: tuple):
+        """``(X, Z)`` at the times ``T grid`` of one integration from ``t = 0`` with the
+        constant control ``w``; RuntimeError when it fails."""
+        return self._integrate(x, z, w, 0.0, T, grid)
+
+    def _integrate(self, x, z, w, tk: float, h: float, grid: tuple | None):
         a = self.a
+        ns = self.tau.size if grid is None else len(grid)
         pv = np.concatenate([w, self.p, [tk, h]])
         attempts = [False, True]
         if a.nz:
@@ -415,12 +453,12 @@ class _GuessSimulator:
         err = None
         for calc_ic in attempts:
             try:
-                res = self._integrator(calc_ic)(x0=x, z0=z, p=pv)
+                res = self._integrator(calc_ic, grid)(x0=x, z0=z, p=pv)
             except RuntimeError as exc:
                 err = exc
                 continue
-            xf = np.asarray(res["xf"]).reshape(a.nx, self.tau.size)
-            zf = np.asarray(res["zf"]).reshape(a.nz, self.tau.size)
+            xf = np.asarray(res["xf"]).reshape(a.nx, ns)
+            zf = np.asarray(res["zf"]).reshape(a.nz, ns)
             if not (np.all(np.isfinite(xf)) and np.all(np.isfinite(zf))):
                 err = RuntimeError("non-finite values")
                 continue

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import ModelError, OCPError
 from ..model import NameNotFoundError, element_name, expand_name, parse_name
-from ..reduced import ReducedDAE
+from ..reduced import Numel, ReducedDAE
 
 __all__ = ["Augmented", "augment"]
 
@@ -47,21 +47,10 @@ class Augmented:
     chains: list[tuple[str, int]] = field(default_factory=list)
     _index: dict[int, tuple[str, int]] = field(default_factory=dict)
 
-    @property
-    def nx(self) -> int:
-        return int(self.x.numel())
-
-    @property
-    def nz(self) -> int:
-        return int(self.z.numel())
-
-    @property
-    def nw(self) -> int:
-        return int(self.w.numel())
-
-    @property
-    def np_(self) -> int:
-        return int(self.p.numel())
+    nx = Numel("x", "Number of differential states (chains included).")
+    nz = Numel("z", "Number of algebraic unknowns.")
+    nw = Numel("w", "Number of controls (the highest input derivatives).")
+    n_p = Numel("p", "Number of parameters.")
 
     def which(self, expr: ca.SX) -> tuple[str, int] | None:
         """``("x", i)``, ``("z", i)``, ``("w", i)`` or ``("p", i)`` when ``expr`` is exactly one

@@ -16,6 +16,34 @@ def _fmt_list(items: list[str], limit: int = 10) -> str:
     return ", ".join(items[:limit]) + f", ... ({len(items)} in all)"
 
 
+def _sign_notes(prob, r) -> list[str]:
+    """Where final or periodic conditions fix every state of a declared invariant that is
+    even in them (a unit quaternion), the sign imposed decides the branch: say so."""
+    from ..reduction.invariants import even_declared
+
+    if not (r.info.get("declared_invariants")):
+        return []
+    a = prob.aug
+    fixed: dict[str, set[str]] = {"final": set(), "periodic": set()}
+    for c in prob.conditions:
+        if c.kind in fixed and not isinstance(c.value, tuple) and c.expr.numel() == 1:
+            w = a.which(c.expr)
+            if w is not None and w[0] == "x":
+                fixed[c.kind].add(a.x_names[w[1]])
+    out = []
+    for nm, states in even_declared(r).items():
+        for kind, got in fixed.items():
+            if set(states) <= got:
+                out.append(
+                    f"The {kind} conditions fix every component of {_fmt_list(states)}, and the "
+                    f"invariant {nm!r} is the same for their negatives: the sign imposed decides "
+                    "the branch (for a quaternion, q and -q are the same rotation, and the sign "
+                    f"decides which way round it turns); ocp.{kind}(..., up_to_sign=...) "
+                    "accepts either."
+                )
+    return out
+
+
 def conflict_message(ba, prob) -> str:
     """The report's line for proven contradictory boundary conditions."""
     if ba.bound_conflicts:
@@ -81,10 +109,13 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
         f"{stats['n_constraints']} constraints. Initial guess: {guess.note}."
     )
     if a.inv_names:
+        declared = set(r.info.get("declared_invariants") or [])
+        shown = [f"{nm} (declared)" if nm in declared else nm for nm in a.inv_names]
         lines.append(
             "Invariants imposed at t = 0 only (exact dynamics keep them afterwards): "
-            f"{_fmt_list(a.inv_names)}."
+            f"{_fmt_list(shown)}."
         )
+        lines.extend(_sign_notes(prob, r))
     if ba.labels:
         n = ba.n_conditions
         if ba.proven:
@@ -116,7 +147,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
                 + (f" (the last {len(ba.pins)} in place of {_fmt_list(replaced)}: the point "
                    "they determine, see below)" if ba.pins else "")
                 + f". Dropped as implied by those and the invariants: {_fmt_list(dropped) or 'none'}"
-                + (f" (branch-selecting, checked at the solution: "
+                + (f" (branch-selecting ones kept as inequalities: "
                    f"{_fmt_list([ba.labels[i] for i in sorted(sel)])})" if sel else "")
                 + ("." if ba.proven else
                    "; the largest residual of these" + (" and the replaced ones" if ba.pins

@@ -35,9 +35,9 @@ class OCPSolution:
     success : bool
         IPOPT converged (``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``).
     status : str
-        IPOPT's return status, or daekit's when IPOPT was not run:
-        ``"Contradictory_Boundary_Conditions"`` (see :attr:`BoundaryAnalysis.conflict`),
-        ``"Infeasible_Boundary_Conditions"`` (the end-point check of ``solve(check=True)``).
+        IPOPT's return status, or ``"Contradictory_Boundary_Conditions"`` when IPOPT was not
+        run because the conditions are proven contradictory (see
+        :attr:`BoundaryAnalysis.conflict` and :attr:`BoundaryAnalysis.proven`).
     objective : float
     t : numpy.ndarray
         Time grid: ``0`` and every collocation point (shooting: the interval boundaries).
@@ -55,7 +55,9 @@ class OCPSolution:
         initial guess came from), ``t_build``, ``t_solve``, ``t_total``, ``n_variables``,
         ``n_constraints``, ``max_constraint_violation``, ``max_bound_violation``,
         ``max_invariant_t0``, ``max_invariant`` (on the grid), ``n_boundary_conditions``,
-        ``boundary_rank``, ``boundary_dropped``, and ``resolved`` (only after a second solve
+        ``boundary_rank``, ``boundary_dropped``, ``boundary_selectors`` (dropped conditions
+        that select a branch: checked at the solution), ``boundary_pins`` (the values imposed
+        at an isolated degenerate end point), and ``resolved`` (only after a second solve
         that imposed violated dropped conditions: ``first_objective``, ``first_status``,
         ``first_iter_count``, ``forced``).
     method : str
@@ -88,6 +90,7 @@ class OCPSolution:
         self.boundary: BoundaryAnalysis | None = None
         self.method = ""
         self._bc_residuals: tuple[np.ndarray, float] = (np.zeros(0), 1.0)
+        self._lam: tuple[np.ndarray, np.ndarray] | None = None  # IPOPT's multipliers
 
     @classmethod
     def _from_grid(cls, prob, tr, V, f, success, status, stats, kept) -> OCPSolution:

@@ -67,7 +67,9 @@ from ..numerics import RANK_RTOL
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
+from ..wording import count
 from .differentiate import derivative_name
+from .invariants import attach_declared, declared_dummy
 from .reduce import (
     _all_symbols,
     _assemble,
@@ -136,15 +138,15 @@ def _point_entry(model, name: str, value, size: int) -> np.ndarray:
         arr = np.asarray(value, dtype=float).ravel()
     except (TypeError, ValueError):
         raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] must be numbers ({size} value(s) for "
+            f"model {model.name!r}: point[{name!r}] must be numbers ({count(size, 'value')} for "
             f"{name!r}), got {value!r}"
         ) from None
     if arr.size == 1:
         return np.full(size, float(arr[0]))
     if arr.size != size:
         raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] has {arr.size} values, but {name!r} has "
-            f"{size} element(s); give {size} numbers (or one number for all)"
+            f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
+            f"has {count(size, 'element')}; give {count(size, 'number')} (or one number for all)"
         )
     return arr
 
@@ -457,6 +459,14 @@ def dummy_derivatives(
     r.info["chains"] = []  # invariants are part of alg: nothing to stabilize
     r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
     r.info["amendments"] = amendments
+    n_found = len(r.invariant_names)  # declared invariants (m.invariant): one dummy state each
+    declared_dummy(attach_declared(r, model, check=check, seed=seed), n_found, point, seed)
+    dec = r.info.get("declared_selection")
+    if dec:  # their gradient G joins J as one more diagonal block, watched like the stages
+        Gsym = dec["expression"]
+        k, nc = Gsym.shape
+        Jsym = ca.diagcat(Jsym, Gsym)
+        blocks = blocks + [(np.arange(n, n + k), np.arange(n, n + nc), dec["cols"])]
     r.info["selection_jacobian"] = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
     r.info["selection_blocks"] = blocks
     if check:

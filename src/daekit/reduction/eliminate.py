@@ -99,7 +99,7 @@ def _constant_coefficients(J: ca.SX, model) -> tuple[np.ndarray, np.ndarray, lis
     r_idx, c_idx = J.sparsity().get_triplet()
     if not r_idx:
         return np.zeros(0, int), np.zeros(0, int), [], np.zeros(0)
-    nz = ca.vertcat(*J.nonzeros())
+    nz = J.nz[:]  # the nonzeros as one column (no Python object per element)
     p = model.parameter_symbols
     phash = {p[i].element_hash() for i in range(p.numel())}
     others = [s for s in ca.symvar(nz) if s.element_hash() not in phash]
@@ -119,15 +119,28 @@ def _constant_coefficients(J: ca.SX, model) -> tuple[np.ndarray, np.ndarray, lis
     else:
         vals = np.asarray(ca.evalf(sel), dtype=float).ravel()
     good = (vals != 0.0) & np.isfinite(vals)
+    # constants as numbers; only the parameter-dependent coefficients as expressions
+    if p.numel():
+        prow, _ = ca.jacobian_sparsity(sel, p).get_triplet()
+        has_p = np.zeros(sel.numel(), dtype=bool)
+        has_p[np.asarray(prow, dtype=np.int64)] = True
+    else:
+        has_p = np.zeros(sel.numel(), dtype=bool)
+    sel_idx = np.nonzero(good)[0]
+    exprs: list = [None] * sel_idx.size
+    pk = np.nonzero(has_p[sel_idx])[0]
+    if pk.size:
+        for k, e in zip(pk.tolist(), ca.vertsplit(sel[sel_idx[pk].tolist()]), strict=True):
+            exprs[k] = e
     keep, vals = keep[good], vals[good]
-    exprs = ca.vertsplit(sel[np.nonzero(good)[0].tolist()]) if keep.size else []
     return (np.asarray(r_idx, dtype=np.int64)[keep], np.asarray(c_idx, dtype=np.int64)[keep],
             exprs, vals)
 
 
-def _candidates(ex: Expansion, highest: bool = False) -> list[tuple[int, int, int, float, ca.SX]]:
+def _candidates(ex: Expansion, highest: bool = False) -> list[tuple]:
     """(i, j, k, a, a_expr): equation element i is ``a x_j^(k) - g`` with ``a`` a nonzero
-    constant or an expression of the parameters only, and ``g`` free of ``x_j^(k)``.
+    constant (``a_expr`` None) or an expression ``a_expr`` of the parameters only (``a`` its
+    value at the defaults), and ``g`` free of ``x_j^(k)``.
 
     ``c_i >= 1``: ``k = d_j - c_i >= 1`` (``x_j^(k)`` would be a state, as ``der(p)`` in
     ``p' = v``). ``c_i = 0`` (``highest``): ``k = d_j >= 1``, a highest derivative that would
@@ -163,7 +176,8 @@ def _free_of_own_symbol(F: ca.SX, X: ca.SX) -> ca.SX:
     if not mixed:
         return ca.substitute(F, X, ca.SX.zeros(n))
     out = ca.SX(F)
-    plain = [r for r in range(n) if r not in set(mixed)]
+    mixed_set = set(mixed)
+    plain = [r for r in range(n) if r not in mixed_set]
     if plain:
         out[plain] = ca.substitute(F[plain], X[plain], ca.SX.zeros(len(plain)))
     for r in mixed:
@@ -183,10 +197,10 @@ def _definitions(ex: Expansion, chosen):
         Fs = ex.equation(s, [e[0] for e in sel])
         Xs = ex.model.symbols_at([e[1] for e in sel], [e[2] + s for e in sel])
         G = _free_of_own_symbol(Fs, Xs)  # = -g^(s)
-        if all(e[4].is_constant() for e in sel):
+        if all(e[4] is None for e in sel):
             defs.append(G * ca.DM([-1.0 / e[3] for e in sel]))
         else:  # parameter-dependent coefficients stay symbolic
-            defs.append(-G / ca.vertcat(*[e[4] for e in sel]))
+            defs.append(-G / ca.vertcat(*[e[3] if e[4] is None else e[4] for e in sel]))
         syms.append(Xs)
         pairs += [(e[1], e[2] + s) for e in sel]
     if not pairs:
@@ -196,32 +210,31 @@ def _definitions(ex: Expansion, chosen):
 
 def _dependency_depth(sp: ca.Sparsity, n: int):
     """Longest dependency chain among definitions (rows depend on columns); None on a cycle,
-    together with the rows that are part of (or depend on) a cycle."""
+    together with the rows that are part of (or depend on) a cycle. Level by level on index
+    arrays (Kahn's algorithm, one frontier at a time)."""
+    import scipy.sparse as sps
+
     r_idx, c_idx = sp.get_triplet()
     if not r_idx:
         return 0, []
-    deps = [[] for _ in range(n)]  # deps[r]: columns r needs
-    users = [[] for _ in range(n)]
-    for r, cc in zip(r_idx, c_idx, strict=True):
-        deps[r].append(cc)
-        users[cc].append(r)
-    missing = [len(x) for x in deps]
-    depth = [0] * n
-    ready = [r for r in range(n) if missing[r] == 0]
-    done = 0
-    while ready:
-        nxt = []
-        for cc in ready:
-            done += 1
-            for r in users[cc]:
-                depth[r] = max(depth[r], depth[cc] + 1)
-                missing[r] -= 1
-                if missing[r] == 0:
-                    nxt.append(r)
-        ready = nxt
+    r_idx = np.asarray(r_idx, dtype=np.int64)
+    c_idx = np.asarray(c_idx, dtype=np.int64)
+    users = sps.csr_matrix((np.ones(r_idx.size), (c_idx, r_idx)), shape=(n, n))  # col -> rows
+    missing = np.bincount(r_idx, minlength=n)
+    ready = np.nonzero(missing == 0)[0]
+    done, depth = 0, 0
+    while ready.size:
+        done += ready.size
+        nxt_rows = users[ready].indices
+        if not nxt_rows.size:
+            break
+        np.subtract.at(missing, nxt_rows, 1)
+        ready = np.unique(nxt_rows[missing[nxt_rows] == 0])
+        if ready.size:
+            depth += 1
     if done < n:
-        return None, [r for r in range(n) if missing[r] > 0]
-    return max(depth), []
+        return None, np.nonzero(missing > 0)[0].tolist()
+    return depth, []
 
 
 def find_eliminations(ex: Expansion, highest: bool = False) -> Elimination:

@@ -63,6 +63,7 @@ from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
+from .invariants import attach_declared
 
 __all__ = ["reduce_index", "check_index1"]
 
@@ -152,7 +153,7 @@ def reduce_index(
         )
     if not check:
         ex, amendments = amended_expansion(model, seed=seed)
-        return _differentiate(ex, amendments, eliminate)
+        return attach_declared(_differentiate(ex, amendments, eliminate), model, check=False)
     # The amendment machinery (left null vectors of Pryce's system Jacobian) only runs where
     # that Jacobian is singular, i.e. where the index-1 check of the plain reduction fails
     # (d alg / d z is the system Jacobian, or its Schur complement on the eliminated pivots)
@@ -160,7 +161,7 @@ def reduce_index(
     r = _differentiate(ex, [], eliminate)
     try:
         check_index1(r, seed=seed)
-        return r
+        return attach_declared(r, model, seed=seed)  # m.invariant(...): checked, appended
     except ReductionError:
         pass
     ex, amendments = amended_expansion(model, seed=seed)
@@ -176,7 +177,7 @@ def reduce_index(
             # highest derivatives were substituted: the message of the KKT form
             reduce_index(model, seed=seed, eliminate="states")
         raise
-    return r
+    return attach_declared(r, model, seed=seed)
 
 
 def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDAE:
@@ -187,12 +188,19 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
     states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
-    zpairs = [(j, int(d[j])) for j in range(n) if (j, int(d[j])) not in gone]
-    rows = [i for i in range(n) if i not in gone_eqs]
+    top_gone = np.zeros(n, dtype=bool)
+    for j, k in el.pairs:
+        if k == int(d[j]):
+            top_gone[j] = True
+    zpairs = list(zip(np.nonzero(~top_gone)[0].tolist(), d[~top_gone].tolist(), strict=True))
+    keep = np.ones(n, dtype=bool)
+    keep[np.asarray(el.equations, dtype=np.int64)] = False
+    rows = np.nonzero(keep)[0].tolist()
     alg = _top_equations(ex)
     if gone_eqs:
         alg = alg[rows]
-    alg_names = [derivative_name(ex.equation_names[i], int(c[i])) for i in rows]
+    eq_names = ex.equation_names
+    alg_names = [derivative_name(eq_names[i], int(c[i])) for i in rows]
     inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
     r = _assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
     if el.pairs:
@@ -760,13 +768,21 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         return
     J = ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
+    small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
-        A = _to_scipy(f(t, x, z, u, p))
-        if not np.all(np.isfinite(A.data)):
-            continue
-        finite = True
-        bad = _singular_rows(A)
+        if small:
+            A = np.asarray(f(t, x, z, u, p).full(), dtype=float)
+            if not np.all(np.isfinite(A)):
+                continue
+            finite = True
+            bad = _dense_singular_rows(A, np.arange(r.nz))
+        else:
+            A = _to_scipy(f(t, x, z, u, p))
+            if not np.all(np.isfinite(A.data)):
+                continue
+            finite = True
+            bad = _singular_rows(A)
         if bad is None:
             break
     if finite and bad is None:

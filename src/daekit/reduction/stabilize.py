@@ -27,6 +27,7 @@ import numpy as np
 from ..errors import ReductionError
 from ..reduced import ReducedDAE
 from .accept import as_reduced
+from .invariants import baumgarte_declared
 
 __all__ = ["BaumgarteStiffnessWarning", "baumgarte", "ggl", "time_scale"]
 
@@ -162,10 +163,15 @@ def baumgarte(
         )
     _chain_coefficients(poles, 1)  # validate the poles even without chains
     inv_rows, alg_rows, vals, coeffs = [], [], [], {}
+    declared, declared_a = [], []
     for ch in chains:
         m = len(ch["invariants"])
         a = _chain_coefficients(poles, m)
         coeffs[ch["equation"]] = a.tolist()
+        if ch.get("declared"):  # m.invariant(...): c' + a0 c = 0 through a multiplier
+            declared.append(ch)
+            declared_a.append(float(a[0]))
+            continue
         for k, idx in enumerate(ch["invariants"]):
             alg_rows.append(ch["alg"])
             inv_rows.append(idx)
@@ -175,9 +181,12 @@ def baumgarte(
     if vals:
         W = ca.DM(ca.Sparsity.triplet(r.nz, len(r.invariant_names), alg_rows, inv_rows), vals)
         out.alg = r.alg + ca.mtimes(W, r.invariants)
+    baumgarte_declared(r, out, declared, declared_a)
     fastest = float(np.max(np.abs(_poles(poles))))
     rate = time_scale(r, x, z)
-    if rate is not None and fastest > warn_ratio * max(rate, 1e-12):
+    # a model with no rate of its own (all eigenvalues zero, e.g. a free mass on a constraint)
+    # gives no time scale to compare the poles with: no warning then
+    if rate is not None and rate > 1e-9 and fastest > warn_ratio * rate:
         warnings.warn(
             f"baumgarte: the fastest pole ({fastest:g}) is more than {warn_ratio:g} times faster "
             f"than the model's own fastest rate (about {rate:.3g}); the stabilized system is "

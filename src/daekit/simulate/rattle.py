@@ -53,8 +53,10 @@ import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
 from ..wording import count
+from .progress import Progress
 
-__all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics"]
+__all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics",
+           "rattle_stepper"]
 
 #: default largest step when neither ``dt`` nor a fine output grid is given
 DEFAULT_DT = 1e-2
@@ -521,7 +523,8 @@ def _bind_inputs(
             expr = ca.repmat(expr, len(elems), 1)
         if expr.numel() != len(elems):
             raise SimulationError(
-                f"RATTLE: input {key!r} has {len(elems)} element(s) but {expr.numel()} values"
+                f"RATTLE: input {key!r} has {count(len(elems), 'element')} but "
+                f"{count(expr.numel(), 'value')}"
             )
         for k, i in enumerate(elems):
             vals[i] = expr[k]
@@ -745,6 +748,29 @@ def _make_consistent(
 # the driver
 
 
+def rattle_stepper(system: Any, t_range, params: dict | None = None, inputs: Any = None,
+                   newton_iter: int = 8) -> tuple[ConstrainedMechanics, ca.Function, dict]:
+    """``(sysm, step, helpers)`` for stepping RATTLE one step at a time (used for events).
+
+    ``step(X, h)`` maps ``X = [t; q; p; lam; max|c|; max|c'|]`` (``p = M q'`` the momenta)
+    over one step ``h``; ``helpers["out"](t, q, p)`` gives ``(v, E, c, c', lam, q'')``,
+    ``helpers["p_of_v"](q, v)`` the momenta. ``t_range`` (start, end) is where inputs are
+    checked.
+
+    >>> import numpy as np
+    >>> from daekit.examples.mechanisms import lagrangian_pendulum3d
+    >>> sysm, step, helpers = rattle_stepper(lagrangian_pendulum3d(), (0.0, 1.0))
+    >>> sysm.n, sysm.m
+    (3, 1)
+    """
+    sysm = as_constrained_mechanics(system, params)
+    t0, t1 = float(t_range[0]), float(t_range[1])
+    force, uexpr = _bind_inputs(sysm, inputs, (t0, 0.5 * (t0 + t1), t1))
+    step, helpers = _build_step(sysm, newton_iter, force)
+    helpers["u"] = ca.Function("u", [sysm.t], [uexpr])
+    return sysm, step, helpers
+
+
 def _fallback_trajectory(**kw: Any) -> Any:
     try:
         from .trajectory import Trajectory  # type: ignore[import-not-found]
@@ -816,7 +842,8 @@ def simulate_rattle(
     """
     if unknown:
         raise ModelError(
-            f"simulate(method='rattle'): unknown option(s) {sorted(unknown)}; RATTLE takes dt, "
+            f"simulate(method='rattle'): unknown {'option' if len(unknown) == 1 else 'options'} "
+            f"{sorted(unknown)}; RATTLE takes dt, "
             "params, inputs, newton_iter, max_newton_iter, tol, init_tol, progress (rtol and "
             "atol do not apply: the step size dt sets the accuracy)"
         )
@@ -859,7 +886,7 @@ def simulate_rattle(
     i = 0
     nout = tt.size - 1
     Xcur = ca.DM(X0)
-    bar = _Progress(tt[0], tt[-1]) if progress else None
+    bar = Progress(progress, tt[0], tt[-1], "RATTLE") if progress else None
     while i < nout:
         k = int(nsteps[i])
         j = i
@@ -988,30 +1015,8 @@ def _override(p_values: Any, names: list[str], params: dict) -> np.ndarray:
             arr = np.repeat(arr, len(elems))
         if arr.size != len(elems) or not np.all(np.isfinite(arr)):
             raise ModelError(
-                f"RATTLE: parameter {key!r} needs {len(elems)} finite value(s), got {val!r}"
+                f"RATTLE: parameter {key!r} needs {count(len(elems), 'finite value')}, got {val!r}"
             )
         pv[elems] = arr
     return pv
 
-
-class _Progress:
-    """A minimal progress bar on stderr."""
-
-    def __init__(self, t0: float, t1: float) -> None:
-        import sys
-
-        self.t0, self.t1, self.out = t0, t1, sys.stderr
-        self.last = -1
-
-    def update(self, t: float) -> None:
-        frac = (t - self.t0) / (self.t1 - self.t0) if self.t1 > self.t0 else 1.0
-        pct = int(100 * frac)
-        if pct != self.last:
-            self.last = pct
-            bar = "#" * (pct // 4)
-            self.out.write(f"\rRATTLE [{bar:<25}] {pct:3d}%  t = {t:.4g}")
-            self.out.flush()
-
-    def close(self) -> None:
-        self.out.write("\n")
-        self.out.flush()

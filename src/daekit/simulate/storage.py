@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import ModelError
 
-__all__ = ["save_trajectory", "load_trajectory"]
+__all__ = ["save_trajectory", "read_trajectory"]
 
 FORMAT = "daekit-trajectory"
 VERSION = 1
@@ -132,14 +132,10 @@ def save_trajectory(traj, path: str | os.PathLike) -> str:
     raise ModelError(f"save: {path!r}: use a .parquet (pyarrow) or a .npz (NumPy) file name")
 
 
-def load_trajectory(path: str | os.PathLike):
-    """Read a trajectory written by :meth:`daekit.Trajectory.save` (``.parquet`` or ``.npz``).
-
-    Returns the :class:`~daekit.Trajectory`, equal to the one saved (the same arrays bit for
-    bit, names, invariants, statistics and extra data such as events).
-    """
-    from .trajectory import Trajectory
-
+def read_trajectory(path: str | os.PathLike) -> dict[str, Any]:
+    """The parts of a trajectory file written by :func:`save_trajectory`: a dict with ``t``,
+    ``values`` (name -> array), ``invariants``, ``invariant_names``, ``stats`` and ``extra``
+    (:func:`daekit.load_trajectory` makes the :class:`~daekit.Trajectory` of them)."""
     path = os.fspath(path)
     if not os.path.exists(path):
         raise ModelError(f"load_trajectory: no such file: {path}")
@@ -171,10 +167,9 @@ def load_trajectory(path: str | os.PathLike):
                if names else np.zeros((t.size, 0)))
     else:
         raise ModelError(f"load_trajectory: {path!r}: a .parquet or .npz file is needed")
-    traj = Trajectory(t, values, inv, meta["invariant_names"], _decode(meta["stats"]))
-    for k, v in _decode(meta.get("extra", {})).items():
-        setattr(traj, k, v)
-    return traj
+    return {"t": t, "values": values, "invariants": inv,
+            "invariant_names": meta["invariant_names"], "stats": _decode(meta["stats"]),
+            "extra": _decode(meta.get("extra", {}))}
 
 
 def _check(meta: dict, path: str) -> None:

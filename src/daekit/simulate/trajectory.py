@@ -16,6 +16,7 @@ Example
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 
 import numpy as np
@@ -23,8 +24,26 @@ import numpy as np
 from ..errors import ModelError
 from ..model import NameNotFoundError, expand_name
 from ..wording import count
+from .storage import read_trajectory, save_trajectory
 
-__all__ = ["Trajectory", "NameNotFoundError", "expand_name"]
+__all__ = ["Trajectory", "NameNotFoundError", "expand_name", "load_trajectory"]
+
+
+def _derivative_name(element: str) -> str:
+    """The name of the time derivative of an element: ``p[0]`` -> ``der(p)[0]``,
+    ``der(p)[0]`` -> ``der(p,2)[0]``, ``x`` -> ``der(x)``."""
+    base, idx = (element.rsplit("[", 1)[0], "[" + element.rsplit("[", 1)[1]) \
+        if element.endswith("]") else (element, "")
+    if base.startswith("der(") and base.endswith(")"):
+        inner = base[4:-1]
+        if "," in inner:
+            var, k = inner.rsplit(",", 1)
+            try:
+                return f"der({var},{int(k) + 1}){idx}"
+            except ValueError:
+                return f"der({base}){idx}"
+        return f"der({inner},2){idx}"
+    return f"der({base}){idx}"
 
 
 def _vector_name(element: str) -> str:
@@ -46,6 +65,9 @@ class Trajectory:
         One name per invariant column, e.g. ``["rod", "d/dt rod"]``.
     stats : dict, optional
         Solver statistics (``steps``, ``residual_evaluations``, ``wall_time``, ...).
+    events : list of (float, str), optional
+        Events that fired, ``(t, name)`` in time order. At an event with a jump the trajectory
+        has two rows at that time: the values just before and just after it.
 
     Attributes
     ----------
@@ -56,6 +78,9 @@ class Trajectory:
     ``traj["p"]`` returns ``(N, size)`` for a vector, ``(N,)`` for a scalar or an element.
     """
 
+    #: events ``[(t, name), ...]`` (from the simulation driver)
+    events: list
+
     def __init__(
         self,
         t,
@@ -63,8 +88,10 @@ class Trajectory:
         invariants=None,
         invariant_names: Iterable[str] | None = None,
         stats: dict | None = None,
+        events: Iterable[tuple[float, str]] | None = None,
     ) -> None:
         self.t = np.asarray(t, dtype=float).ravel()
+        self.events: list[tuple[float, str]] = [(float(te), str(n)) for te, n in (events or [])]
         n = self.t.size
         self.values: dict[str, np.ndarray] = {}
         for k, v in values.items():
@@ -125,9 +152,57 @@ class Trajectory:
         return {n: float(v) for n, v in zip(self.invariant_names, m, strict=False)}
 
     def at(self, time: float) -> dict[str, float]:
-        """Values at the grid point nearest ``time`` (by element name)."""
-        k = int(np.argmin(np.abs(self.t - time)))
-        return {n: float(v[k]) for n, v in self.values.items()}
+        """Values at any ``time`` in ``[t[0], t[-1]]`` (by element name), interpolated.
+
+        Cubic Hermite interpolation on the output interval containing ``time``: the slopes
+        are the stored derivatives where the trajectory has them (``"der(p)[0]"`` for
+        ``"p[0]"``: the DAE's own values, so the interpolant is third-order accurate), else
+        second-order finite differences of the neighbouring points. At an event time (two rows
+        with the same ``t``) the values after the event are returned.
+
+        >>> import numpy as np
+        >>> t = np.linspace(0.0, 1.0, 11)
+        >>> tr = Trajectory(t, {"x": np.sin(t), "der(x)": np.cos(t)})
+        >>> bool(abs(tr.at(0.55)["x"] - np.sin(0.55)) < 1e-6)
+        True
+        """
+        t = self.t
+        n = t.size
+        try:
+            tq = float(time)
+        except (TypeError, ValueError):
+            raise ModelError(f"Trajectory.at: time must be one number, got {time!r}") from None
+        if n == 0 or not (t[0] <= tq <= t[-1]):
+            span = f"[{t[0]:g}, {t[-1]:g}]" if n else "an empty trajectory"
+            raise ModelError(f"Trajectory.at: t = {tq:g} is outside {span}; it interpolates only")
+        k = int(np.searchsorted(t, tq, side="right")) - 1
+        if k >= n - 1 or t[k] == tq:
+            k = min(k, n - 1)
+            return {nm: float(v[k]) for nm, v in self.values.items()}
+        h = t[k + 1] - t[k]
+        s = (tq - t[k]) / h
+        h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+        h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+        out = {}
+        for nm, v in self.values.items():
+            d = self.values.get(_derivative_name(nm))
+            m0 = d[k] if d is not None else self._fd_slope(v, k)
+            m1 = d[k + 1] if d is not None else self._fd_slope(v, k + 1)
+            out[nm] = float(h00 * v[k] + h10 * h * m0 + h01 * v[k + 1] + h11 * h * m1)
+        return out
+
+    def _fd_slope(self, v: np.ndarray, i: int) -> float:
+        """Slope at row ``i`` from its neighbours (one-sided at the ends and at jumps)."""
+        t = self.t
+        lo = i - 1 if i > 0 and t[i - 1] < t[i] else i
+        hi = i + 1 if i + 1 < t.size and t[i + 1] > t[i] else i
+        if hi == lo:
+            return 0.0
+        if lo < i < hi:  # second order on a non-uniform grid
+            h1, h2 = t[i] - t[lo], t[hi] - t[i]
+            return float((h1**2 * v[hi] - h2**2 * v[lo] + (h2**2 - h1**2) * v[i])
+                         / (h1 * h2 * (h1 + h2)))
+        return float((v[hi] - v[lo]) / (t[hi] - t[lo]))
 
     def slice(self, stop: int) -> Trajectory:
         """The first ``stop`` time points."""
@@ -137,6 +212,7 @@ class Trajectory:
             self.invariants[:stop],
             self.invariant_names,
             self.stats,
+            [e for e in self.events if self.t.size and stop > 0 and e[0] <= self.t[:stop][-1]],
         )
 
     # ------------------------------------------------------------------ export and figures
@@ -161,8 +237,6 @@ class Trajectory:
         """Write this trajectory to ``path``, ``.parquet`` (pyarrow) or ``.npz`` (NumPy), a
         lossless documented format (:mod:`daekit.simulate.storage`); read it back with
         :func:`daekit.load_trajectory`. Returns the path written."""
-        from .storage import save_trajectory
-
         return save_trajectory(self, path)
 
     def plot(self, names: Iterable[str] | str | None = None, ax=None):
@@ -190,3 +264,18 @@ class Trajectory:
             f"{', ...' if len(self.names) > 8 else ''}; "
             f"{count(len(self.invariant_names), 'invariant')})"
         )
+
+
+def load_trajectory(path: str | os.PathLike) -> Trajectory:
+    """Read a trajectory written by :meth:`Trajectory.save` (``.parquet`` or ``.npz``; the
+    format is documented in :mod:`daekit.simulate.storage`).
+
+    Returns the :class:`Trajectory`, equal to the one saved (the same arrays bit for bit,
+    names, invariants, statistics and extra data such as events).
+    """
+    parts = read_trajectory(path)
+    traj = Trajectory(parts["t"], parts["values"], parts["invariants"], parts["invariant_names"],
+                      parts["stats"])
+    for k, v in parts["extra"].items():
+        setattr(traj, k, v)
+    return traj

@@ -15,9 +15,9 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
-from ..errors import DaekitError, ModelError
-from ..model import element_name, parse_name
-from ..wording import count
+from .errors import DaekitError, ModelError
+from .model import NameNotFoundError, element_name, expand_name, parse_name
+from .wording import count
 
 __all__ = ["InputSignal", "InputError", "resolve_params"]
 
@@ -100,7 +100,7 @@ class InputSignal:
                 sx = ca.repmat(sx, len(elems), 1)
             if sx.numel() != len(elems):
                 raise InputError(
-                    f"inputs: {key!r} has {len(elems)} element(s) but the expression has "
+                    f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
                     f"{sx.numel()}"
                 )
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
@@ -168,6 +168,7 @@ class InputSignal:
             else ca.SX(0, 1)
         self._fexpr = ca.Function("u_of_t", [t, self.cb_syms], [self.expr])
         self.nu = nu
+        self._constant: bool | None = None
 
     @property
     def has_callables(self) -> bool:
@@ -191,8 +192,8 @@ class InputSignal:
                     v = np.repeat(v, n)
                 if v.size != n:
                     raise InputError(
-                        f"input {key!r} returned {v.size} value(s) at t = {t:g}; it has {n} "
-                        "element(s)"
+                        f"input {key!r} returned {count(v.size, 'value')} at t = {t:g}; it has "
+                        f"{count(n, 'element')}"
                     )
                 cache[id(f)] = v
             out[j] = cache[id(f)][k]
@@ -210,9 +211,24 @@ class InputSignal:
         ts = np.asarray(ts, dtype=float).ravel()
         if self.nu == 0:
             return np.zeros((ts.size, 0))
+        if not self.has_callables and self._constant is None:
+            self._constant = (not ca.depends_on(self.expr, self.r.t)) and self.expr.is_constant()
+        if not self.has_callables and self._constant:
+            # inputs that do not change (the default: zero): one evaluation
+            u0 = np.asarray(ca.DM(self.expr), dtype=float).ravel()
+            self.check_finite(u0, float(ts[0]) if ts.size else 0.0)
+            return np.repeat(u0[None, :], ts.size, axis=0)
         if not self.has_callables:
-            u = np.asarray(self._fexpr.map(ts.size)(ts, np.zeros((0, ts.size))), dtype=float)
-            u = u.reshape(self.nu, ts.size).T
+            n = ts.size
+            m = n if n <= 64 else 1 << (n - 1).bit_length()  # few distinct mapped Functions
+            maps = self.__dict__.setdefault("_maps", {})
+            if m not in maps:
+                if len(maps) > 8:
+                    maps.clear()
+                maps[m] = self._fexpr.map(m)
+            tp = np.concatenate([ts, np.repeat(ts[-1:], m - n)]) if m > n else ts
+            u = np.asarray(maps[m](tp, np.zeros((0, m))), dtype=float)
+            u = u.reshape(self.nu, m).T[:n]
             if not np.isfinite(u).all():
                 k = int(np.argmin(np.isfinite(u).all(axis=1)))
                 self.check_finite(u[k], ts[k])
@@ -282,7 +298,6 @@ def resolve_params(r, params: Mapping | None) -> np.ndarray:
                          f"{count(pv.size, 'value')}")
     if not params:
         return pv
-    from .trajectory import NameNotFoundError, expand_name
 
     index = {n: i for i, n in enumerate(r.p_names)}
     for key, val in params.items():

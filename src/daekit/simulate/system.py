@@ -1,0 +1,602 @@
+"""The integrator wrapper shared by every simulation path: a ReducedDAE with its inputs plugged in.
+
+:class:`System` holds the CasADi functions of one ReducedDAE (with ``u(t)`` substituted) and
+makes SUNDIALS IDAS grid integrators on demand. One call of :meth:`System.run` is one
+continuous IDAS run over a time grid: IDAS steps by its own error control and *interpolates*
+the grid points (``IDA_NORMAL`` mode), so a grid point never restarts nor limits a step. Every
+run starts without IDACalcIC from ``xdot0 = ode(x0, z0)`` (the driver only starts from values
+it made consistent: ``z0`` solved from ``alg = 0``), with a first step that depends on the
+tolerances and the state's derivative, not on the output grid (see :meth:`System.step0`).
+What SUNDIALS prints is captured (:func:`daekit._cio.c_output`) and never reaches the console;
+a failure raises :class:`IntegrationFailure` with the time SUNDIALS reported.
+
+Systems are cached *on the ReducedDAE object itself* (attribute ``_daekit_systems``), keyed by
+its equations, inputs and settings: the cache lives and dies with the system it belongs to.
+
+Example
+-------
+>>> import casadi as ca, numpy as np
+>>> from daekit.reduced import ReducedDAE
+>>> from daekit.inputs import InputSignal
+>>> from daekit.simulate.system import system_for
+>>> t = ca.SX.sym("t"); x = ca.SX.sym("x"); z = ca.SX.sym("z")
+>>> r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), -z, z - x, ca.SX(0, 1), [], ["x"],
+...     ["z"], [], [], np.zeros(0), {"x": x, "z": z})
+>>> s = system_for(r, InputSignal(r, None), 1e-10, 1e-10, {})
+>>> X, Z, st = s.run(np.array([0.0, 0.5, 1.0]), np.array([1.0]), np.array([1.0]), np.zeros(0))
+>>> bool(abs(X[-1, 0] - np.exp(-1)) < 1e-8), st["steps"] > 0
+(True, True)
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from collections.abc import Mapping
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .._cio import c_output, failure_time
+from ..inputs import InputError, InputSignal
+from .trajectory import Trajectory
+
+__all__ = ["System", "system_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
+           "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
+
+_IDA_REASONS = {
+    "IDA_CONV_FAIL": "the Newton iteration failed to converge repeatedly (the algebraic "
+    "equations may have no solution here, or their Jacobian d alg/dz is singular)",
+    "IDA_ERR_FAIL": "the error test failed repeatedly (a fast transient, a discontinuity, or a "
+    "singularity of the solution)",
+    "IDA_TOO_MUCH_WORK": "too many steps (max_num_steps) between two grid points: the problem "
+    "is stiff or has a singularity; raise max_num_steps",
+    "IDA_TOO_MUCH_ACC": "the tolerances are too tight for double precision",
+    "IDA_LSETUP_FAIL": "the linear solver setup failed (singular iteration matrix: the "
+    "constraint Jacobian lost rank)",
+    "IDA_LSOLVE_FAIL": "the linear solve failed (singular iteration matrix)",
+    "IDA_RES_FAIL": "the residual function failed (a NaN or an exception while evaluating "
+    "the equations)",
+    "IDA_REP_RES_ERR": "repeated recoverable residual errors",
+    "IDA_CONSTR_FAIL": "constraints could not be met",
+    "IDA_FIRST_RES_FAIL": "the residual failed at the first call (NaN at the initial point?)",
+    "IDA_NO_RECOVERY": "the Newton iteration could not recover (singular algebraic Jacobian)",
+    "IDA_BAD_EWT": "an error weight became zero or negative (a component went to zero with "
+    "atol = 0, or NaN)",
+}
+
+
+def reason(exc: BaseException | str) -> str:
+    """A plain-language reason for an IDAS failure message.
+
+    >>> reason("... IDA_CONV_FAIL ...").startswith("IDA_CONV_FAIL: the Newton iteration")
+    True
+    """
+    msg = str(exc)
+    for flag, text in _IDA_REASONS.items():
+        if flag in msg:
+            return f"{flag}: {text}"
+    m = re.search(r"(IDA\w+)", msg)
+    tail = msg.strip().splitlines()[-1] if msg.strip() else type(exc).__name__
+    return (m.group(1) + ": " if m else "") + tail[-300:]
+
+
+class IntegrationFailure(RuntimeError):
+    """IDAS failed inside :meth:`System.run`: ``.t`` where SUNDIALS stopped (or the start),
+    ``.text`` what it said (captured), ``.why`` the plain-language reason."""
+
+    def __init__(self, message: str, t: float, text: str, why: str) -> None:
+        super().__init__(message)
+        self.t, self.text, self.why = t, text, why
+
+
+def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
+              want_stats: bool = False) -> dict:
+    """Call a CasADi Function writing straight into NumPy arrays (``Function.buffer``).
+
+    Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's column-major
+    ``(size, points)``; ``outs`` maps output names to such shapes.
+
+    >>> import casadi as ca, numpy as np
+    >>> x = ca.SX.sym("x", 2)
+    >>> F = ca.Function("f", [x], [2 * x], ["x"], ["y"])
+    >>> fast_call(F, {"x": np.array([1.0, 2.0])}, {"y": (2,)})["y"].tolist()
+    [2.0, 4.0]
+    """
+    buf, ev = F.buffer()
+    keep = []
+    for i, name in enumerate(F.name_in()):
+        a = args.get(name)
+        a = np.zeros(F.nnz_in(i)) if a is None else np.ascontiguousarray(a, dtype=float).ravel()
+        if a.size != F.nnz_in(i):
+            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
+        keep.append(a)
+        buf.set_arg(i, memoryview(a))
+    res = {}
+    for i, name in enumerate(F.name_out()):
+        shape = outs.get(name)
+        r = np.zeros(shape if shape is not None else F.nnz_out(i))
+        if r.size != F.nnz_out(i):
+            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
+        keep.append(r)
+        buf.set_res(i, memoryview(r))
+        if shape is not None:
+            res[name] = r
+    ev()
+    if want_stats:
+        try:
+            res["_stats"] = buf.stats()
+        except Exception:  # noqa: BLE001
+            res["_stats"] = {}
+    return res
+
+
+def to_scipy(M: ca.DM) -> sp.csc_matrix:
+    """A CasADi sparse DM as a SciPy CSC matrix (no dense intermediate).
+
+    >>> import casadi as ca
+    >>> to_scipy(ca.DM([[1, 0], [0, 2]])).toarray().tolist()
+    [[1.0, 0.0], [0.0, 2.0]]
+    """
+    M = ca.DM(M)
+    s = M.sparsity()
+    colind, row = s.get_ccs()
+    return sp.csc_matrix((np.asarray(M.nonzeros(), dtype=float), row, colind), shape=M.shape)
+
+
+def stats_of(raw: Mapping | None) -> dict:
+    """daekit's statistics names from CasADi's integrator statistics.
+
+    >>> stats_of({"nsteps": 3})["steps"]
+    3
+    """
+    s = raw or {}
+    return {
+        "steps": int(s.get("nsteps", 0)),
+        "residual_evaluations": int(s.get("nfevals", 0)),
+        "jacobian_evaluations": int(s.get("n_call_jacF", 0)),
+        "error_test_failures": int(s.get("netfails", 0)),
+        "newton_failures": int(s.get("nncfails", 0)),
+    }
+
+
+class Evaluator:
+    """Original variables and invariants of a ReducedDAE at many points.
+
+    Variables that are plain elements of ``x``, ``z`` or ``u`` are read off the arrays; only the
+    others (and the invariants) go through one mapped CasADi Function.
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x"); z = ca.SX.sym("z")
+    >>> r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), -z, z - x, x - 1, ["c"], ["x"],
+    ...     ["z"], [], [], np.zeros(0), {"x": x, "z": z, "der(x)": -z})
+    >>> vals, inv = Evaluator(r)(np.zeros(2), np.ones((2, 1)), np.ones((2, 1)),
+    ...                          np.zeros((2, 0)), np.zeros(0))
+    >>> vals["der(x)"].tolist(), inv[:, 0].tolist()
+    ([-1.0, -1.0], [0.0, 0.0])
+    """
+
+    def __init__(self, r) -> None:
+        names = list(r.variables)
+        exprs = [ca.SX(r.variables[n]) for n in names]
+        for i, nm in enumerate(r.u_names):
+            if nm not in r.variables:
+                names.append(nm)
+                exprs.append(r.u[i])
+        self.names = names
+        where: dict[int, tuple[str, int]] = {}
+        for key, vec in (("x", r.x), ("z", r.z), ("u", r.u)):
+            for i in range(vec.numel()):
+                where[vec[i].element_hash()] = (key, i)
+        self.direct: dict[str, tuple[str, int]] = {}
+        self.const: dict[str, float] = {}
+        rest_names, rest = [], []
+        for n, e in zip(names, exprs, strict=True):
+            if e.numel() == 1 and e.is_symbolic() and e.element_hash() in where:
+                self.direct[n] = where[e.element_hash()]
+            elif e.numel() == 1 and e.is_constant():
+                self.const[n] = float(ca.DM(e))
+            else:
+                rest_names.append(n)
+                rest.append(e)
+        self.rest_names = rest_names
+        inv = r.invariants if r.invariants.numel() else ca.SX(0, 1)
+        allv = ca.vertcat(*rest) if rest else ca.SX(0, 1)
+        self.nv = int(allv.numel())
+        self.ninv = int(inv.numel())
+        self.fun = ca.Function("evaluate", [r.t, r.x, r.z, r.u, r.p], [allv, inv])
+        self.inv_fun = ca.Function("invariants", [r.t, r.x, r.z, r.u, r.p], [inv])
+        self._maps: dict[tuple, ca.Function] = {}
+
+    def _mapped(self, F: ca.Function, n: int) -> ca.Function:
+        key = (F.name(), n)
+        if key not in self._maps:
+            if len(self._maps) > 8:
+                self._maps.clear()
+            self._maps[key] = F.map(n)
+        return self._maps[key]
+
+    def invariants(self, t, X, Z, U, p) -> np.ndarray:
+        """Invariant values ``(N, ninv)`` at the points ``t (N,)``, ``X``, ``Z``, ``U``."""
+        t = np.asarray(t, dtype=float).ravel()
+        n = t.size
+        if n == 0 or self.ninv == 0:
+            return np.zeros((n, self.ninv))
+        m = _padded(n)
+        fm = self._mapped(self.inv_fun, m)
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
+        ni = fm.name_in()
+        out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
+                             ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.ninv)})
+        return out[fm.name_out(0)][:n]
+
+    def __call__(self, t, X, Z, U, p):
+        """t (N,), X (N, nx), Z (N, nz), U (N, nu) -> (values dict, invariants (N, ninv))."""
+        n = t.size
+        if n == 0:
+            return {k: np.zeros(0) for k in self.names}, np.zeros((0, self.ninv))
+        arrays = {"x": X, "z": Z, "u": U}
+        if self.nv or self.ninv:
+            fm = self._mapped(self.fun, n)
+            P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+            ni = fm.name_in()
+            out = fast_call(fm, {ni[0]: t, ni[1]: X, ni[2]: Z, ni[3]: U, ni[4]: P},
+                            {fm.name_out(0): (n, self.nv), fm.name_out(1): (n, self.ninv)})
+            V = out[fm.name_out(0)].T
+            inv = out[fm.name_out(1)]
+        else:
+            V, inv = np.zeros((0, n)), np.zeros((n, 0))
+        rest = {k: V[i] for i, k in enumerate(self.rest_names)}
+        vals = {}
+        for k in self.names:
+            if k in self.direct:
+                a, i = self.direct[k]
+                vals[k] = arrays[a][:, i]
+            elif k in self.const:
+                vals[k] = np.full(n, self.const[k])
+            else:
+                vals[k] = rest[k]
+        return vals, inv
+
+
+def _padded(n: int) -> int:
+    """Sizes of mapped Functions: up to 64 exact, then powers of two (few distinct maps)."""
+    return n if n <= 64 else 1 << (n - 1).bit_length()
+
+
+def _pad(A, m: int) -> np.ndarray:
+    """Rows of ``A`` padded to ``m`` by repeating the last one."""
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    if n == m:
+        return A
+    reps = np.repeat(A[-1:], m - n, axis=0) if n else np.zeros((m,) + A.shape[1:])
+    return np.concatenate([A, reps], axis=0)
+
+
+def make_trajectory(r, tg, X, Z, U, pv, stats, evaluator: Evaluator | None = None) -> Trajectory:
+    """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``."""
+    ev = evaluator or Evaluator(r)
+    vals, inv = ev(np.asarray(tg, dtype=float), X, Z, U, pv)
+    return Trajectory(tg, vals, inv, list(r.invariant_names), stats)
+
+
+def reraise_input_error(system: System) -> None:
+    """Re-raise the InputError a Python input callable raised inside an integrator call."""
+    cb = getattr(system.ufun, "_daekit_cb", None) if system.ufun is not None else None
+    if cb is not None and cb.error is not None:
+        err = cb.error
+        cb.error = None
+        raise err
+
+
+def _fingerprint(r) -> tuple:
+    """Identity of a ReducedDAE's equations (a copy with replaced equations differs)."""
+    return (id(r.ode), id(r.alg), id(r.invariants), id(r.variables), id(r.x), id(r.z))
+
+
+def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> System:
+    """The :class:`System` of ``r`` for these inputs and settings, built once and kept on ``r``
+    (no global cache: it is freed with ``r``). Callable inputs are never cached."""
+    if sig.has_callables:
+        return System(r, sig, rtol, atol, options)
+    try:
+        # the input by its serialized function, not its printed form: printing rounds
+        # constants to ~6 digits, and two different inputs must not share an integrator
+        u_key = ca.Function("u_key", [r.t], [sig.expr]).serialize()
+        key = (_fingerprint(r), u_key, float(rtol), float(atol), repr(sorted(options.items())))
+    except Exception:  # noqa: BLE001 - unprintable option: no caching
+        return System(r, sig, rtol, atol, options)
+    cache = r.__dict__.setdefault("_daekit_systems", {})
+    hit = cache.get(key)
+    if hit is not None:
+        return hit
+    sysm = System(r, sig, rtol, atol, options)
+    if len(cache) >= 8:
+        cache.pop(next(iter(cache)))
+    cache[key] = sysm
+    return sysm
+
+
+class System:
+    """A ReducedDAE with its inputs plugged in, ready for CasADi IDAS integrators.
+
+    Parameters
+    ----------
+    r : ReducedDAE
+    sig : InputSignal
+        The inputs ``u(t)``.
+    rtol, atol : float
+        IDAS tolerances.
+    options : dict
+        Extra CasADi IDAS options (``max_num_steps``, ``suppress_algebraic``, ...).
+    """
+
+    #: steps IDAS may take between two grid points in a first attempt (a failing attempt gives
+    #: up early; the driver's grids have check points, so intervals are short; the last retry
+    #: gets the user's ``max_num_steps``, default 100000)
+    first_budget = 3000
+
+    def __init__(self, r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> None:
+        self.r = r
+        self.sig = sig
+        self.nx, self.nz, self.nu = r.nx, r.nz, r.nu
+        self.rtol, self.atol = float(rtol), float(atol)
+        self.options = dict(options)
+        ode = ca.vec(r.ode) if r.ode.numel() else ca.SX(0, 1)  # 1x0 and 0x1 alike
+        alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+        self.f = ca.Function("daefun", [r.t, r.x, r.z, r.p, r.u], [ode, alg])
+        self.use_mx = sig.has_callables
+        self.ufun = sig.mx_function() if self.use_mx else None
+        self._grid: dict = {}
+        self._evaluator: Evaluator | None = None
+        self._alg_fun = None
+        self._oracle = None
+
+    # ------------------------------------------------------------------ functions
+    @property
+    def evaluator(self) -> Evaluator:
+        if self._evaluator is None:
+            self._evaluator = Evaluator(self.r)
+        return self._evaluator
+
+    @property
+    def alg_fun(self) -> ca.Function:
+        """``(t, x, z, u, p) -> (alg, d alg/dz)`` (sparse)."""
+        if self._alg_fun is None:
+            r = self.r
+            alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+            self._alg_fun = ca.Function("alg", [r.t, r.x, r.z, r.u, r.p],
+                                        [alg, ca.jacobian(alg, r.z)])
+        return self._alg_fun
+
+    def xdot(self, t, x, z, u, p) -> np.ndarray:
+        """``ode(t, x, z, u, p)`` as a NumPy vector."""
+        return np.asarray(self.f(t, x, z, p, u)[0], dtype=float).ravel()
+
+    def solve_z(self, t, x, z, u, p, iters: int = 30) -> np.ndarray:
+        """Newton on ``alg = 0`` for ``z`` at fixed ``x`` (sparse LU of ``d alg/dz``)."""
+        z = np.asarray(z, dtype=float).ravel().copy()
+        if self.nz == 0:
+            return z
+        for _ in range(iters):
+            g, Jz = self.alg_fun(t, x, z, u, p)
+            g = np.asarray(g, dtype=float).ravel()
+            if not np.all(np.isfinite(g)):
+                break
+            if np.max(np.abs(g)) < 1e-14 * (1 + np.max(np.abs(z))):
+                break
+            dz = _sparse_solve(to_scipy(Jz), -g)
+            z = z + dz
+            if np.max(np.abs(dz)) < 1e-15 * (1 + np.max(np.abs(z))):
+                break
+        return z
+
+    def polish_z(self, T, X, Z, U, p, iters: int = 4) -> np.ndarray:
+        """``Z`` re-solved from ``alg = 0`` at many points at once (rows of ``T, X, Z, U``):
+        batched Newton with the dense ``d alg/dz`` blocks (``nz <= 64``; else row by row)."""
+        Z = np.array(Z, dtype=float, copy=True)
+        n = np.size(T)
+        if self.nz == 0 or n == 0:
+            return Z
+        if self.nz > 64:
+            for i in range(n):
+                Z[i] = self.solve_z(T[i], X[i], Z[i], U[i], p)
+            return Z
+        if getattr(self, "_alg_dense", None) is None:
+            r = self.r
+            alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+            self._alg_dense = ca.Function("alg_dense", [r.t, r.x, r.z, r.u, r.p],
+                                          [alg, ca.densify(ca.jacobian(alg, r.z))])
+            self._alg_maps = {}
+        m = _padded(n)
+        if m not in self._alg_maps:
+            if len(self._alg_maps) > 8:
+                self._alg_maps.clear()
+            self._alg_maps[m] = self._alg_dense.map(m)
+        F = self._alg_maps[m]
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
+        ni, no = F.name_in(), F.name_out()
+        nz = self.nz
+        T, X, U = _pad(np.asarray(T, float).ravel(), m), _pad(X, m), _pad(U, m)
+        Z = _pad(Z, m)
+        for _ in range(iters):
+            out = fast_call(F, {ni[0]: T, ni[1]: X, ni[2]: Z, ni[3]: U, ni[4]: P},
+                            {no[0]: (m, nz), no[1]: (m, nz, nz)})
+            g = out[no[0]]
+            if not np.all(np.isfinite(g)):
+                break
+            if np.max(np.abs(g)) < 1e-15 * (1 + np.max(np.abs(Z))):
+                break
+            J = np.transpose(out[no[1]], (0, 2, 1))  # column-major blocks
+            try:
+                dz = np.linalg.solve(J, -g[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                break
+            if not np.all(np.isfinite(dz)):
+                break
+            Z += dz
+        return Z[:n]
+
+    def step0(self, x0, xdot0, span: float) -> float:
+        """The first step: IDAS's own rule ``min(1e-3 span, 0.5 / ||xdot0||_wrms)`` with ``span``
+        the whole simulated time span, never the first output interval (see issue 8 item 6);
+        ``5e-7 span`` for index-2 systems (GGL)."""
+        if self.r.info.get("index", 1) >= 2:
+            # index 2 (GGL): the Newton matrix has condition ~ 1/h, and tiny first steps fail
+            # (measured: the pendulum's GGL form at rtol 1e-10): a moderate step, 5e-7 of the
+            # span (never of the output spacing: with one output interval it used to fail)
+            return 5e-7 * span
+        w = 1.0 / (self.rtol * np.abs(np.asarray(x0, float)) + self.atol)
+        nrm = float(np.sqrt(np.mean((np.asarray(xdot0, float) * w) ** 2))) if w.size else 0.0
+        h = 1e-3 * span
+        if nrm * h > 0.5:
+            h = 0.5 / nrm
+        return max(h, 1e-14 * max(1.0, span))
+
+    # ------------------------------------------------------------------ integrators
+    def _dae(self) -> ca.Function:
+        """The DAE as one CasADi Function (IDAS's oracle), built once: every integrator made
+        from it shares its derivative functions, so a new integrator costs about a millisecond."""
+        if self._oracle is None:
+            r = self.r
+            S = ca.MX if self.use_mx else ca.SX
+            if self.use_mx:
+                t = ca.MX.sym("t")
+                x, z, p = ca.MX.sym("x", self.nx), ca.MX.sym("z", self.nz), ca.MX.sym("p", r.n_p)
+                ode, alg = self.f(t, x, z, p, self.ufun(t))
+            else:
+                t, x, z, p = r.t, r.x, r.z, r.p
+                ode, alg = self.f(t, x, z, p, self.sig.expr)
+            self._oracle = ca.Function("daekit_dae", [t, x, z, p, S(0, 1)],
+                                       [ode, alg, S(0, 1), S(0, 1)],
+                                       ["t", "x", "z", "p", "u"], ["ode", "alg", "quad", "zero"])
+        return self._oracle
+
+    def options_for(self, extra: Mapping | None = None) -> dict:
+        o = {"abstol": self.atol, "reltol": self.rtol, "max_num_steps": 100000,
+             "show_eval_warnings": False, "disable_internal_warnings": True}
+        o.update(self.options)
+        if extra:
+            o.update(extra)
+        return o
+
+    def integrator(self, grid: np.ndarray, extra: Mapping | None = None) -> ca.Function:
+        """A CasADi IDAS integrator from ``grid[0]`` with output at ``grid[1:]`` (kept for reuse:
+        the last few grids)."""
+        grid = np.asarray(grid, dtype=float)
+        key = (grid.tobytes(), repr(sorted((extra or {}).items())))
+        F = self._grid.get(key)
+        if F is None:
+            if len(self._grid) >= 6:
+                self._grid.pop(next(iter(self._grid)))
+            opts = self.options_for(extra)
+            try:
+                F = ca.integrator("daekit_idas", "idas", self._dae(), float(grid[0]),
+                                  [float(v) for v in grid[1:]], opts)
+            except RuntimeError as exc:
+                raise _option_error(exc, opts) from None
+            self._grid[key] = F
+        return F
+
+    def run(self, grid, x0, z0, p, extra: Mapping | None = None, consistent: bool = True,
+            span: float | None = None):
+        """One continuous IDAS run over ``grid`` from ``(x0, z0)`` at ``grid[0]``.
+
+        ``consistent=True``: no IDACalcIC; IDAS starts from ``xdot0 = ode(x0, z0)`` with the
+        first step :meth:`step0` (``span``: the time scale, default the grid's). ``extra``:
+        further IDAS options for this run. Returns ``(X, Z, stats)`` with ``X (len(grid), nx)``
+        (row 0 the start); raises :class:`IntegrationFailure`.
+        """
+        grid = np.asarray(grid, dtype=float)
+        n = grid.size
+        x0 = np.asarray(x0, dtype=float).ravel()
+        z0 = np.asarray(z0, dtype=float).ravel()
+        opts = dict(extra or {})
+        if consistent and "calc_ic" not in self.options:
+            u0 = self.sig.value(float(grid[0])) if not self.use_mx else \
+                np.asarray(self.ufun(float(grid[0])), dtype=float).ravel()
+            xd = self.xdot(float(grid[0]), x0, z0, u0, p)
+            opts.setdefault("calc_ic", False)
+            if "init_xdot" not in opts:
+                opts["init_xdot"] = [float(v) for v in xd]
+            if "step0" not in self.options:
+                opts.setdefault("step0", self.step0(x0, xd, float(span or (grid[-1] - grid[0]))))
+        F = self.integrator(grid, _hashable(opts))
+        X = np.empty((n, self.nx))
+        Z = np.empty((n, self.nz))
+        X[0], Z[0] = x0, z0
+        with c_output() as said:
+            try:
+                if not self.use_mx:
+                    res = fast_call(F, {"x0": x0, "z0": z0, "p": p},
+                                    {"xf": (n - 1, self.nx), "zf": (n - 1, self.nz)},
+                                    want_stats=True)
+                    raw = res["_stats"]
+                    X[1:], Z[1:] = res["xf"], res["zf"]
+                else:
+                    res = F(x0=x0, z0=z0, p=p)
+                    try:
+                        raw = F.stats()
+                    except Exception:  # noqa: BLE001
+                        raw = {}
+                    X[1:] = np.asarray(res["xf"], dtype=float).reshape(self.nx, -1).T
+                    Z[1:] = np.asarray(res["zf"], dtype=float).reshape(self.nz, -1).T
+                failed = None
+            except RuntimeError as exc:
+                failed = exc
+        if failed is not None:
+            reraise_input_error(self)
+            tf = failure_time(said.text)
+            if tf is None or not math.isfinite(tf) or tf < grid[0]:
+                tf = float(grid[0])
+            why = reason(said.text if "IDA_" in said.text else failed)
+            raise IntegrationFailure(f"IDAS failed at t = {tf:.6g}: {why}", tf, said.text, why)
+        return X, Z, stats_of(raw)
+
+
+def _hashable(opts: Mapping) -> dict:
+    return {k: (list(v) if isinstance(v, (list, tuple, np.ndarray)) else v)
+            for k, v in opts.items()}
+
+
+def _sparse_solve(A: sp.csc_matrix, b: np.ndarray) -> np.ndarray:
+    """``A x = b`` by sparse LU; least squares where ``A`` is singular or not square."""
+    if A.shape[0] == A.shape[1]:
+        try:
+            with np.errstate(all="ignore"):
+                x = spla.splu(A.tocsc()).solve(b)
+            if np.all(np.isfinite(x)):
+                return x
+        except RuntimeError:
+            pass
+    return spla.lsqr(A, b, atol=1e-15, btol=1e-15, iter_lim=10 * max(A.shape))[0]
+
+
+_UNKNOWN_OPTION = re.compile(r"Unknown option: (\w+)")
+_SUGGESTION = re.compile(r'> "(\w+)"')
+
+
+def _option_error(exc: RuntimeError, opts: Mapping) -> Exception:
+    """CasADi's refusal of an integrator option as a daekit error naming it (other failures
+    are passed on unchanged: they are not the user's options)."""
+    text = str(exc)
+    hit = _UNKNOWN_OPTION.search(text)
+    if hit is None:
+        if "option" in text.lower() and any(str(k) in text for k in opts):
+            bad = [str(k) for k in opts if str(k) in text]
+            return InputError(f"simulate: the IDAS option(s) {bad} were refused by CasADi: "
+                              f"{text.splitlines()[0][-200:]}")
+        return exc
+    name = hit.group(1)
+    near = difflib.get_close_matches(name, _SUGGESTION.findall(text), n=3, cutoff=0.6)
+    hint = f" Did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
+    return InputError(
+        f"simulate: {name!r} is not an option of CasADi's IDAS integrator.{hint} daekit's own "
+        "settings are rtol=, atol=, stabilization=, drift_tol=, inputs=, params=; other keywords "
+        "go to IDAS (see casadi.integrator's documentation, e.g. max_num_steps, max_order)."
+    )

@@ -35,16 +35,22 @@ from scipy.sparse.csgraph import connected_components
 
 from .errors import ModelError
 from .model import Model
+from .numerics import (
+    DENSE_LIMIT,
+    RANK_RTOL,  # noqa: F401 - re-exported (older imports)
+    rank_info,
+    sparse_rank_deficiency,
+    sparse_rcond,
+)
+from .points import DRAWS, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
-from .threads import limit_blas_threads
+from .threads import blas_threads, limit_blas_threads
 from .wording import count
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
-           "is_index1"]
+           "is_index1", "derivative_array_dof"]
 
-RANK_RTOL = 1e3 * np.finfo(float).eps
-DENSE_LIMIT = 400  # largest BLT block of the system Jacobian checked by a dense SVD
 EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
 NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array is computed
 ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take many seconds)
@@ -52,53 +58,22 @@ BATCH = 60  # small connected parts are stacked into derivative arrays of about 
 
 
 # ----------------------------------------------------------------------------- numerics
-def _equilibrate(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    for axis in (1, 0):
-        mx = np.max(np.abs(a), axis=axis, keepdims=True) if a.size else a
-        scale = np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-        a = a * scale
-    return a
-
-
 def numeric_rank(a: np.ndarray) -> tuple[int, float]:
     """Rank and reciprocal condition (sigma_min / sigma_max) of a dense matrix after
-    equilibration; see the module docstring for the tolerance."""
-    a = np.atleast_2d(np.asarray(a, dtype=float))
-    if a.size == 0:
-        return 0, 1.0
-    s = np.linalg.svd(_equilibrate(a), compute_uv=False)
-    if s[0] == 0:
-        return 0, 0.0
-    tol = RANK_RTOL * max(a.shape) * s[0]
-    return int(np.sum(s > tol)), float(s[-1] / s[0]) if len(s) == min(a.shape) else 0.0
+    equilibration: :func:`daekit.numerics.rank_info` (the one rank routine).
 
-
-def _sparse_rcond(a: sp.csc_matrix) -> tuple[float, int]:
-    """Estimate of sigma_min / sigma_max of a big square sparse matrix via sparse LU pivots
-    (after equilibration), and the number of pivots below ``RANK_RTOL * n`` times the largest."""
-    a = sp.csc_matrix(a)
-    r = np.asarray(np.abs(a).max(axis=1).todense()).ravel()
-    r[r == 0] = 1.0
-    a = sp.diags(1.0 / r) @ a
-    c = np.asarray(np.abs(a).max(axis=0).todense()).ravel()
-    c[c == 0] = 1.0
-    a = sp.csc_matrix(a @ sp.diags(1.0 / c))
-    try:
-        lu = spla.splu(a, permc_spec="COLAMD")
-    except RuntimeError:  # exactly singular
-        return 0.0, 1
-    d = np.abs(lu.U.diagonal())
-    if not d.size or d.max() == 0:
-        return 0.0, max(a.shape[0], 1)
-    small = int(np.sum(d <= RANK_RTOL * a.shape[0] * d.max()))
-    return float(d.min() / d.max()), small
+    >>> import numpy as np
+    >>> numeric_rank(np.array([[1.0, 1e9], [1e-9, 1.0]]))[0]
+    1
+    """
+    info = rank_info(a)
+    return info.rank, info.rcond
 
 
 # ----------------------------------------------------------------------------- points
-# Distributions of the random test values, tried in this order until the Jacobians are finite.
-_DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
-          ("uniform", 1.5, 3.0), ("normal", 0.0, 3.0))
+_DRAWS = DRAWS
+_Point = TestPoint
+_check_point = check_point
 
 
 class _NonFinite(Exception):
@@ -107,86 +82,6 @@ class _NonFinite(Exception):
     def __init__(self, labels: list[str]) -> None:
         super().__init__(", ".join(labels))
         self.labels = labels
-
-
-class _Point:
-    """Numeric values for every symbol of a model (unknowns and derivatives, controls, t,
-    parameters): the user's values where given, defaults for parameters, random elsewhere
-    (drawn from ``_DRAWS[attempt]``, seeded by ``seed`` and ``attempt``)."""
-
-    def __init__(self, model: Model, point: dict | None, seed: int = 0, attempt: int = 0) -> None:
-        self.model = model
-        self.rng = np.random.default_rng(seed + 7919 * attempt)
-        self.draw = _DRAWS[attempt]
-        self.values: dict[int, float] = {}  # element hash -> value
-        point = _check_point(model, point)
-        self.t = point["t"][0] if "t" in point else float(self._random(1)[0])
-        for var in model.parameters:
-            for i in range(var.size):
-                self.values[var.sym[i].element_hash()] = float(var.default[i])
-        for name, arr in point.items():
-            if name == "t":
-                continue
-            for (var, i, order), v in zip(model.resolve(name), arr, strict=True):
-                self.values[var.der(order)[i].element_hash()] = float(v)
-
-    def _random(self, size: int) -> np.ndarray:
-        kind, a, b = self.draw
-        # the first draw: small positive values, generic and safe for sqrt, log and exp of
-        # differences; the later ones reach other parts of a model's domain
-        return self.rng.uniform(a, b, size) if kind == "uniform" else self.rng.normal(a, b, size)
-
-    def evaluate(self, syms: list[ca.SX]) -> np.ndarray:
-        out = np.empty(len(syms))
-        for k, s in enumerate(syms):
-            h = s.element_hash()
-            if h not in self.values:
-                self.values[h] = float(self._random(1)[0])
-            out[k] = self.values[h]
-        return out
-
-    def sparse(self, expr: ca.SX) -> sp.csr_matrix:
-        """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix."""
-        th = self.model.t.element_hash()
-        syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
-        f = ca.Function("at_point", [self.model.t, ca.vertcat(*syms)], [expr])
-        val = ca.DM(f(self.t, self.evaluate(syms)))
-        r, c = val.sparsity().get_triplet()
-        return sp.csr_matrix((np.asarray(val.nonzeros(), dtype=float), (r, c)), shape=val.shape)
-
-
-def _check_point(model: Model, point) -> dict[str, np.ndarray]:
-    """The user's ``point`` as {name: values}, each checked for type, size and finiteness."""
-    if point is None:
-        return {}
-    if not isinstance(point, dict):
-        raise ModelError(
-            f"model {model.name!r}: point must be a dict of values by name, e.g. "
-            f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"
-        )
-    out = {}
-    for name, val in point.items():
-        if not isinstance(name, str):
-            raise ModelError(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
-        size = 1 if name == "t" else len(model.resolve(name))
-        try:
-            arr = np.asarray(val, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric; give "
-                + ("a number" if size == 1 else f"a number or {size} numbers")
-            ) from None
-        if arr.size == 1:
-            arr = np.full(size, arr[0])
-        if arr.size != size:
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
-                f"has {count(size, 'element')}; give {count(size, 'value')} (or one for all)"
-            )
-        if not np.all(np.isfinite(arr)):
-            raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
-        out[name] = arr
-    return out
 
 
 def _at_finite_point(model: Model, point: dict | None, seed: int, work, what: str):
@@ -243,7 +138,9 @@ class EasyTest:
 
 
 def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTest:
-    """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``.
+    """The lecture's easy test: rank and condition number of ``[dF/dx' dF/dz]``, at a point
+    where ``F = 0`` (Gauss--Newton from random values, :mod:`daekit.points`; the random point
+    itself where none is found).
 
     The Jacobian is evaluated sparsely. Up to ``EASY_DENSE_LIMIT`` equations its rank comes
     from an SVD; beyond, from the structural rank (Dulmage--Mendelsohn) and the diagonal blocks
@@ -264,7 +161,12 @@ def is_index1(model: Model, point: dict | None = None, seed: int = 0) -> EasyTes
     """
     model = Model.require(model, "is_index1")
     model.validate()
-    return _at_finite_point(model, point, seed, lambda pt: _easy_test(model, pt), "is_index1")
+    with blas_threads():
+        def work(pt: _Point) -> EasyTest:
+            consistent_point(pt, model.residual)  # on F = 0 (the easy test's manifold)
+            return _easy_test(model, pt)
+
+        return _at_finite_point(model, point, seed, work, "is_index1")
 
 
 def _easy_test(model: Model, pt: _Point) -> EasyTest:
@@ -335,14 +237,13 @@ def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
         schur = j_ss - j_sn @ x
     else:
         schur = j_ss
-    u, sv, _ = np.linalg.svd(_equilibrate(schur))
+    info = rank_info(schur)
     m = len(s_rows)
-    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
-    rank_s = int(np.sum(sv > tol))
+    rank_s = info.rank
     if rank_s == m:
         return n, []
-    # left null vectors of the equilibrated Schur complement -> of the Schur complement
-    a_s = u[:, rank_s:] * _row_scale(schur)[:, None]
+    # left null vectors of the Schur complement (in its own coordinates)
+    a_s = info.left_null.T
     weight = np.zeros(n)
     weight[s_rows] = np.linalg.norm(a_s, axis=1)
     if len(n_rows):
@@ -350,14 +251,6 @@ def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
         weight[n_rows] = np.linalg.norm(a_n, axis=1)
     rows = np.nonzero(weight > 1e-8 * weight.max())[0].tolist()
     return len(n_rows) + rank_s, rows
-
-
-def _row_scale(a: np.ndarray) -> np.ndarray:
-    """The row factors of :func:`_equilibrate` (a left null vector ``w`` of the equilibrated
-    matrix ``R A C`` gives ``R w`` for ``A``)."""
-    mx = np.max(np.abs(a), axis=1)
-    r = np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-    return r
 
 
 @dataclass
@@ -379,16 +272,13 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
     size = len(rows)
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
-        u, sv, _ = np.linalg.svd(_equilibrate(sub.toarray()))
-        tol = RANK_RTOL * size * sv[0] if sv.size and sv[0] > 0 else np.inf
-        rank = int(np.sum(sv > tol))
-        rcond = float(sv[-1] / sv[0]) if rank == size else 0.0
-        weight = np.linalg.norm(u[:, rank:], axis=1) if rank < size else np.zeros(size)
-        return _RankCheck(rows, size, rank, rcond, [rows[k] for k in np.nonzero(weight > 1e-8)[0]])
-    rc, small = _sparse_rcond(sub)
-    if rc > RANK_RTOL * size and small == 0:
-        return _RankCheck(rows, size, size, rc, [])
-    return _RankCheck(rows, size, size - max(small, 1), 0.0, rows)
+        info = rank_info(sub)
+        return _RankCheck(rows, size, info.rank, info.rcond,
+                          [rows[k] for k in info.deficient_rows()])
+    small = sparse_rank_deficiency(sub)
+    if small == 0:
+        return _RankCheck(rows, size, size, sparse_rcond(sub), [])
+    return _RankCheck(rows, size, size - small, 0.0, rows)
 
 
 # ----------------------------------------------------------------------------- derivative array
@@ -445,7 +335,36 @@ def differential_index(
         return _numeric_part(model, eq_lab, unk_lab, np.unique(eq_lab), pt, max_index,
                              "differential_index")
 
-    return _at_finite_point(model, point, seed, work, "differential_index")
+    with blas_threads():
+        return _at_finite_point(model, point, seed, work, "differential_index")
+
+
+def derivative_array_dof(model: Model, equations: list[str], seed: int = 0):
+    """DOF of the connected parts of ``model`` (linked by shared unknowns) that contain the
+    named equations, from the derivative array at consistent points; also the equation and
+    unknown indices of those parts. Used to check the amendments of
+    :func:`daekit.reduce_index`.
+
+    Example
+    -------
+    >>> import daekit as dk
+    >>> derivative_array_dof(dk.examples.gear_petzold(), ["dynamic"])[0]
+    0
+    """
+    inc = model.incidence()
+    eq_lab, unk_lab = _components(inc)
+    names = model.equation_names
+    want = [i for i, nm in enumerate(names) if nm in set(equations) or nm.split("[")[0] in
+            set(equations)]
+    comps = np.unique(eq_lab[want])
+
+    def work(pt: _Point):
+        return _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "reduce_index")
+
+    res = _at_finite_point(model, None, seed, work, "reduce_index")
+    rows = np.nonzero(np.isin(eq_lab, comps))[0]
+    cols = np.nonzero(np.isin(unk_lab, comps))[0]
+    return res.dof, rows, cols
 
 
 def _components(inc) -> tuple[np.ndarray, np.ndarray]:
@@ -496,6 +415,15 @@ def _numeric_part(model: Model, eq_lab, unk_lab, comps, pt: _Point, max_index, w
     )
 
 
+def _require_small(model: Model, eq_lab, comps, what: str, singular: list[str]) -> None:
+    """Raise the error of :func:`_too_big` for the first of ``comps`` too big for the
+    derivative array."""
+    for comp in comps:
+        rows = np.nonzero(eq_lab == comp)[0]
+        if len(rows) > NUMERIC_LIMIT:
+            raise _too_big(model, rows, what, singular)
+
+
 def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> ModelError:
     eq_names = model.equation_names
     part = (f"the connected part of the model that contains them (equations linked by shared "
@@ -521,8 +449,8 @@ def _short(names: list[str], limit: int = 10) -> str:
     return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")
 
 
-def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str
-                      ) -> DerivativeArrayResult:
+def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
+                      soft: bool = False) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
     new derivatives), assembled into dense matrices for the rank decisions."""
@@ -544,7 +472,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     state_r = [r for sj in s_ord for r in range(sj)]
     X_s = model.symbols_at(state_j, state_r)
     level = model.residual[rows]
-    blocks: list[sp.csr_matrix] = []  # Jacobian rows of each level w.r.t. [columns, states]
+    levels: list[ca.SX] = []  # the array's levels F, F', ..., F^(k) of these equations
     ranks: list[tuple[int, int, int]] = []
     for k in range(max_index + 1):
         if k > 0:
@@ -561,6 +489,8 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             col_r += [int(mj) + k for mj in m]
             target += [int(mj) + k == sj for sj, mj in zip(s_ord, m)]
         if (k + 1) * len(rows) > ARRAY_LIMIT:
+            if soft:
+                return None
             raise ModelError(
                 f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
                 f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
@@ -569,29 +499,46 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 "unknowns at all"
             )
         X = model.symbols_at(col_j, col_r)
-        blk = pt.sparse(ca.jacobian(level, ca.vertcat(X, X_s)))
-        _require_finite(blk, lambda r, k=k: _der_eq(eq_names[rows[r]], k))
-        blocks.append(blk)
-        width = len(col_j) + len(state_j)
-        full = sp.vstack([sp.hstack([b[:, : b.shape[1] - len(state_j)],
-                                     sp.csr_matrix((b.shape[0], width - b.shape[1])),
-                                     b[:, b.shape[1] - len(state_j):]]) for b in blocks]).toarray()
-        jac, jac_s = full[:, : len(col_j)], full[:, len(col_j):]
-        tgt = np.array(target)
-        r_all, _ = numeric_rank(jac)
-        r_rest, _ = numeric_rank(jac[:, ~tgt])
+        levels.append(level)
+        arr = ca.vertcat(*levels)
+        jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
+        tgt = np.array(target, dtype=bool)
+        r_all = r_rest = r_full = -1
+        at_random = pt.sparse(jac_sym) if k == 0 or pt.status is None else None
+        if at_random is None:
+            at_random = pt.random_copy().sparse(jac_sym)
+        for q in _array_points(pt, arr):
+            full = _vanishing_removed(q.sparse(jac_sym), at_random)
+            _require_finite(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
+                                                    r // len(rows)))
+            full = full.toarray()
+            jac = full[:, : len(col_j)]
+            r_all = max(r_all, numeric_rank(jac)[0])
+            r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
+            r_full = max(r_full, numeric_rank(full)[0] if len(state_j) else 0)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
-            r_full, _ = numeric_rank(np.hstack([jac, jac_s])) if len(state_j) else (r_all, 0)
-            constraints = r_full - r_all
+            constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
+    if soft:
+        return None
     raise ModelError(
         f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
         f"determine all derivatives of the equations {_short([eq_names[i] for i in rows], 6)}; "
         "the model may be singular (not uniquely solvable) at the test point; try another "
         "point (point=...)"
     )
+
+
+def _array_points(pt: _Point, arr: ca.SX) -> list[_Point]:
+    """Two points on ``arr = 0`` (``pt`` itself, moved, and a sibling), or ``[pt]`` as it is
+    when no consistent point is found (then ``pt.status`` says so)."""
+    st = consistent_point(pt, arr)
+    if not st.consistent:
+        return [pt]
+    other = pt.sibling(1)
+    return [pt, other] if consistent_point(other, arr).consistent else [pt]
 
 
 # ----------------------------------------------------------------------------- analyze
@@ -656,6 +603,8 @@ class Analysis:
     sigma: list[tuple[str, str, int]] = field(default_factory=list)
     singular_blocks: list[list[str]] = field(default_factory=list)
     structural_part: tuple[int, int] | None = None
+    test_points: str = "at a random point"
+    index_confirmed: tuple | None = None
     declared_invariants: list[str] = field(default_factory=list)
     _model: Model | None = field(default=None, repr=False, compare=False)
     _definitions: list[str] | None = field(default=None, repr=False, compare=False)
@@ -699,6 +648,29 @@ class Analysis:
         }
 
 
+#: An entry whose value at a consistent point is below this fraction of its value at a random
+#: point vanishes on the solutions (``cos(x) (x' - v)`` where ``x' = v``): it is set to zero.
+#: The ratio of one entry at two points does not depend on units.
+VANISH = 1e-9
+
+
+def _vanishing_removed(at_consistent: sp.spmatrix, at_random: sp.spmatrix) -> sp.csr_matrix:
+    """``at_consistent`` without the entries that vanish on the solutions (see ``VANISH``);
+    both matrices must have the same pattern (the same symbolic expression)."""
+    c = sp.csr_matrix(at_consistent, copy=True)
+    rnd = sp.csr_matrix(at_random)
+    if c.nnz == 0 or c.shape != rnd.shape:
+        return c
+    ref = np.asarray(abs(rnd)[c.nonzero()]).ravel()
+    vals = c[c.nonzero()].A1 if hasattr(c[c.nonzero()], "A1") else np.asarray(c[c.nonzero()]).ravel()
+    tiny = np.abs(vals) <= VANISH * ref
+    if np.any(tiny):
+        r_, c_ = c.nonzero()
+        c[r_[tiny], c_[tiny]] = 0.0
+        c.eliminate_zeros()
+    return c
+
+
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
     """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
@@ -726,8 +698,14 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
     return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
 
 
+#: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
+#: rows than this are tested at a random point unless ``analyze(..., consistent=True)``.
+POINT_LIMIT = 2000
+
+
 @limit_blas_threads
-def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
+def analyze(model: Model, point: dict | None = None, seed: int = 0,
+            consistent: bool | None = None) -> Analysis:
     """Analyze a DAE: structural index and offsets (Pryce's Sigma-method), whether structural
     analysis is trustworthy here, the differential index, the DOF, and the easy test.
 
@@ -761,7 +739,15 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     point : dict, optional
         Values of variables and derivatives by name (``"p"``, ``"der(p)"``, ``"t"``) at which
         Jacobians are evaluated; missing values are drawn at random (seeded by ``seed``;
-        other draws follow where the model is not defined at the first one).
+        other draws follow where the model is not defined at the first one). The values are
+        then made consistent (see ``consistent``): the ones given are held where they admit
+        a consistent completion, else they are only the start of the search.
+    consistent : bool, optional
+        Evaluate the numeric tests at consistent points (on the solution manifold, found by
+        Gauss--Newton on the equations and their derivatives up to Pryce's offsets,
+        :mod:`daekit.points`); the system Jacobian is confirmed singular at a second such
+        point. Default (None): yes up to ``POINT_LIMIT`` equations and derivatives, a random
+        point beyond (``explain()`` says which was used).
 
     Example
     -------
@@ -782,18 +768,57 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
     eq_names, var_names = model.equation_names, model.unknown_names
     keep = inc.vals == d[inc.cols] - c[inc.rows]
 
+    from .reduction.differentiate import expand
+
+    if consistent is None:
+        consistent = int((c + 1).sum()) <= POINT_LIMIT
+    ex = expand(model, validate=False) if consistent else None
+    # F_i^(k), k <= c_i: the points are made consistent with these
+    expansion = ca.vertcat(*ex.levels) if consistent else None
+    jrows, jcols, jvals = inc.rows[keep], inc.cols[keep], inc.vals[keep]
+
+    eq_lab, unk_lab = _components(inc)
+
     def work(pt: _Point):
-        jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
+        # 1. at the random point: a block singular there is singular on the solutions too
+        #    (the rank there is the generic one), so structural analysis fails for sure
+        jac = _sparse_jacobian(model, jrows, jcols, jvals, pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
         checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
+        if sing0:  # too big for the derivative array: say so before any further work
+            _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
+                           [eq_names[i] for b in sing0 for i in b])
+        # 2. at a consistent point: a block can be singular on the solutions only (a
+        #    constraint times a function that vanishes there, gp_scaled); confirmed at a
+        #    second consistent point, as the rank on the manifold is the larger of the two
+        status = consistent_point(pt, expansion) if consistent else None
+        if status is not None and status.consistent:
+            jac_c = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt), jac)
+            new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
+                   if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
+            for k in new:
+                br, bc = blocks_idx[k]
+                checks[k] = _rank_check(jac_c, br, bc)
+            # Gauss-Newton may land on a singular branch of the solutions (x2 = 0 of
+            # x2 (x1 + z) = 0): up to two more consistent points from other draws
+            for extra in (1, 2):
+                if not any(checks[k].rank < checks[k].size for k in new):
+                    break
+                pt2 = pt.sibling(extra)
+                if not consistent_point(pt2, expansion).consistent:
+                    continue
+                jac2 = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
+                for k in new:
+                    br, bc = blocks_idx[k]
+                    checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
         rcond = min((ch.rcond for ch in checks), default=1.0)
         singular = [ch.rows for ch in checks if ch.rank < ch.size]
         numeric, part = None, None
         index, dof = sig.index, sig.dof
+        comps = np.unique(eq_lab[np.concatenate(singular)]) if singular else np.zeros(0, int)
         if singular:
-            eq_lab, unk_lab = _components(inc)
-            comps = np.unique(eq_lab[np.concatenate(singular)])
             numeric = _numeric_part(model, eq_lab, unk_lab, comps, pt, None, "analyze",
                                     [eq_names[i] for b in singular for i in b])
             rest_e = ~np.isin(eq_lab, comps)
@@ -803,10 +828,19 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
             index, dof = max(part[0], numeric.index), part[1] + numeric.dof
             if not rest_e.any():
                 part = None
-        return jac, blocks_idx, rcond, singular, numeric, part, index, dof, _easy_test(model, pt)
+        confirmed = _confirm_index(model, eq_lab, unk_lab, comps, c, d, pt,
+                                   numeric.index if numeric is not None else 0)
+        if confirmed is not None:
+            index = confirmed[0]
+            if part is not None:
+                part = (confirmed[0], part[1])
+        easy = _easy_test(model, pt)
+        return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
+                pt.status, confirmed)
 
-    jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy = _at_finite_point(
-        model, point, seed, work, "analyze")
+    with blas_threads():
+        (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
+         confirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     declared = [e.element(i) for e in model.declared_invariants for i in range(e.size)]
@@ -833,7 +867,86 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0) -> Analysis:
         n_inputs=sum(v.size for v in model.controls),
         singular_blocks=[[eq_names[i] for i in b] for b in singular],
         structural_part=part,
+        test_points=_describe_points(model, status, expansion_names(ex) if ex else []),
+        index_confirmed=confirmed,
     )
+
+
+#: Largest connected part (unknowns) whose structural index is checked against the derivative
+#: array when structural analysis succeeds (the structural index is only an upper bound).
+CONFIRM_LIMIT = 20
+
+
+def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor: int):
+    """Where structural analysis succeeds Pryce's index is an upper bound of the differential
+    index. The model's index is the largest of its connected parts', so only the parts that
+    attain the largest structural index are checked, largest first, each only if it has at
+    most ``CONFIRM_LIMIT`` unknowns: the derivative array (at consistent points) up to one
+    level below its structural index. Returns ``(index, [(equations, structural, found)])``
+    when some part's index is lower and the model's index drops, else None."""
+    parts = []
+    for comp in np.unique(eq_lab):
+        if comp in set(np.asarray(skip).tolist()):
+            continue
+        rows = np.nonzero(eq_lab == comp)[0]
+        cols = np.nonzero(unk_lab == comp)[0]
+        parts.append((structural_index(c[rows], d[cols]), rows, cols))
+    if not parts:
+        return None
+    top = max(p[0] for p in parts)
+    if top <= max(floor, 0):
+        return None
+    inc = model.incidence()
+    m_all = np.zeros(inc.n_unknowns, dtype=np.int64)
+    np.maximum.at(m_all, inc.cols, inc.vals)
+    found, lowered = [], []
+    for nu, rows, cols in sorted(parts, key=lambda p: -p[0]):
+        if nu < top:
+            found.append(nu)
+            continue
+        if len(cols) > CONFIRM_LIMIT:
+            return None
+        try:
+            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True)
+        except (ModelError, _NonFinite):
+            res = None
+        if res is None:
+            return None  # this part has the structural index: the model's index stays
+        found.append(res.index)
+        lowered.append(([model.equation_names[i] for i in rows], nu, res.index))
+    index = max(max(found), floor)
+    return (index, lowered) if index < top else None
+
+
+def expansion_names(ex) -> list[str]:
+    """Names of the rows of ``vertcat(ex.levels)``: ``"rod"``, ``"d/dt rod"``, ..."""
+    out = []
+    for k, rk in enumerate(ex.rows):
+        out += [_der_eq(ex.equation_names[i], k) for i in rk]
+    return out
+
+
+def _describe_points(model: Model, status, names: list[str]) -> str:
+    """One sentence for explain(): where the numeric tests were evaluated."""
+    if status is None:
+        return (f"at a random point (the model is large: more than {POINT_LIMIT} equations "
+                "and derivatives; analyze(model, consistent=True) finds a consistent one)")
+    if status.consistent:
+        if status.given:
+            return "at your point (it satisfies the equations and their derivatives)"
+        return ("at consistent points (the equations and their needed derivatives hold there "
+                f"to {max(status.residual, 1e-16):.0e}, found by Gauss-Newton)")
+    worst = [names[i] for i in (status.worst or []) if i < len(names)][:4]
+    if status.given:
+        return ("at YOUR point, as given: it does not satisfy the equations and their needed "
+                f"derivatives (relative residual {status.residual:.1e}"
+                + (f" in {', '.join(worst)}" if worst else "") + ") and the values you gave "
+                "admit no consistent completion; the numeric results hold there, not "
+                "necessarily on the solutions")
+    return ("at a RANDOM point: no consistent point was found (Gauss-Newton left a relative "
+            f"residual of {status.residual:.1e}" + (f" in {', '.join(worst)}" if worst else "")
+            + "); the numeric results may not hold on the solutions -- give a consistent "
+            "point=")
 
 
 def _definitions(model: Model) -> list[int]:
@@ -907,6 +1020,14 @@ def _explain(a: Analysis) -> str:
         )
     else:
         lines.extend(_explain_failure(a))
+    if a.index_confirmed:
+        for eqs, nu, found in a.index_confirmed[1]:
+            lines.append(
+                f"The structural index {nu} of the equations {_short(eqs, 6)} is only an upper "
+                f"bound: their derivative array (at consistent points) determines every "
+                f"derivative after {found} differentiation(s), so the differential index is "
+                f"{a.index}.")
+    lines.append(f"(The numeric tests were evaluated {a.test_points}.)")
     lines.append("")
     e = a.easy
     if e.passed:

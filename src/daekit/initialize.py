@@ -1006,53 +1006,57 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> Non
 
 def _dependent_fixed(J, n_cons, fixed_names) -> list[str]:
     """Fixed values whose rows of ``J`` lie in the span of the consistency rows and of the
-    (independent) fixed rows before them: the consistency rows' span is projected out, then
-    Gram--Schmidt in the given order (:func:`_greedy_dependent_rows`) measures each row's
-    distance from the span of the rows accepted before it."""
+    (independent) fixed rows before them, decided scale-invariantly
+    (:func:`daekit.numerics.redundant_rows`): each fixed row, in the equilibrated
+    coordinates of the consistency rows and normalized, is projected on the directions the
+    consistency rows and the accepted fixed rows leave free; it is redundant when nothing of
+    it is left (below ``1e-8``). Units of equations and variables do not matter."""
     if not fixed_names:
         return []
-    n = J.shape[1]
-    base = J[:n_cons]
-    if base.size:
-        # an orthonormal basis of the consistency rows' span, then remove it from the fixed rows
-        u, sv, vt = np.linalg.svd(base, full_matrices=False)
-        rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
-        basis = vt[:rank]
-        rows = J[n_cons:] - (J[n_cons:] @ basis.T) @ basis
-    else:
-        rows = J[n_cons:].copy()
-    if rows.shape[0] == 0 or n == 0:
+    if J.shape[1] == 0:
         return list(fixed_names)
-    scale = max(1.0, np.abs(J).max())
-    dependent = set(_greedy_dependent_rows(rows, 1e-9 * scale))
-    return [nm for k, nm in enumerate(fixed_names) if k in dependent]
+    from .numerics import redundant_rows
+
+    return [fixed_names[k] for k in redundant_rows(J[:n_cons], J[n_cons:])]
 
 
 def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
     """A set of state names that can be fixed freely.
 
     The algebraic unknowns are eliminated first (``alg`` is solvable for ``z``):
-    ``J = J_inv,x - J_inv,z J_alg,z^+ J_alg,x``; then a column-pivoted QR of ``J`` picks
-    ``rank J`` dependent states (the pivots); the remaining states are free. The user's fixed
-    states are weighted down so that they are reported free whenever they can be.
+    ``J = J_inv,x - J_inv,z J_alg,z^+ J_alg,x``; entries that cancel to rounding (below
+    ``1e-10`` of the terms that make them; the invariants of a dummy-derivative system, which
+    its algebraic equations contain, vanish entirely) are dropped. The number of dependent
+    states is the scale-invariant rank (:func:`daekit.numerics.rank`) of ``Jc`` less that of
+    its ``z`` columns; a column-pivoted QR of the equilibrated ``J`` picks them (the pivots);
+    the remaining states are free. The user's fixed states are weighted down so that they are
+    reported free whenever they can be.
     """
+    from .numerics import equilibrate, rank
+
     nz = Jc.shape[1] - nx
     n_alg = r.nz if r.alg.numel() == r.nz else int(r.alg.numel())
     Ja, Ji = Jc[:n_alg], Jc[n_alg:]
     if Ji.shape[0] == 0 or nx == 0:
         return set(r.x_names)
     if nz and n_alg:
-        Jred = Ji[:, :nx] - Ji[:, nx:] @ np.linalg.lstsq(Ja[:, nx:], Ja[:, :nx], rcond=1e-12)[0]
+        dr, dc = equilibrate(Ja[:, nx:])
+        Y = dc[:, None] * np.linalg.lstsq(Ja[:, nx:] * dr[:, None] * dc[None, :],
+                                          Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
+        T = Ji[:, nx:] @ Y
+        Jred = Ji[:, :nx] - T
+        Jred[np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T))] = 0.0
     else:
-        Jred = Ji[:, :nx]
-    sv = np.linalg.svd(Jred, compute_uv=False)
-    # relative to the rows before elimination too: rows that alg implies (a dummy-derivative
-    # system's invariants) leave rounding noise, not rank
-    big = max(sv.max(initial=0.0), 1e-6 * float(np.abs(Ji).max(initial=0.0)), 1e-300)
-    rank = int(np.sum(sv > 1e-9 * big))
+        Jred = Ji[:, :nx].copy()
+    k = rank(Jc) - (rank(Jc[:, nx:]) if nz else 0)
+    k = max(0, min(k, nx))
+    if k == 0:
+        return set(r.x_names)
+    dr, dc = equilibrate(Jred)
     colw = np.array([1e-2 if nm in fixed else 1.0 for nm in r.x_names])
-    _, _, piv = scipy.linalg.qr(Jred * colw, mode="economic", pivoting=True)
-    dependent = set(piv[:rank].tolist())
+    _, _, piv = scipy.linalg.qr(Jred * dr[:, None] * dc[None, :] * colw[None, :],
+                                mode="economic", pivoting=True)
+    dependent = set(piv[:k].tolist())
     return {r.x_names[i] for i in range(nx) if i not in dependent}
 
 

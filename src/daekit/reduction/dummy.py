@@ -61,9 +61,9 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..analysis import RANK_RTOL
 from ..errors import ReductionError
 from ..model import Model
+from ..numerics import RANK_RTOL
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads

@@ -24,7 +24,7 @@ Method ``"differentiate"`` (Pryce's Sigma-method scheme)
    nonsingular at one of them; otherwise the structural analysis failed on this model (its
    system Jacobian is singular) and a :class:`ReductionError` names the equations involved.
    Singularity is always judged after row and column equilibration (powers of two) with the
-   relative tolerance ``RANK_RTOL * n * sigma_max`` of :mod:`daekit.analysis`, so a regular
+   relative tolerance of :mod:`daekit.numerics`, so a regular
    but badly scaled model (``1e-12 x' + x = 0``) is not mistaken for a singular one.
 
 Inputs: where ``F_i^(c_i)`` needs derivatives of a control ``u``, the symbols ``der(u)``,
@@ -55,8 +55,8 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..analysis import RANK_RTOL
-from ..errors import ReductionError
+from .. import numerics
+from ..errors import DaekitError, ReductionError
 from ..model import Model, element_name
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
@@ -169,6 +169,8 @@ def reduce_index(
         r = _differentiate(ex, amendments, eliminate)
     try:
         check_index1(r, seed=seed)
+        if amendments:
+            check_amendments(model, r, seed=seed)
     except ReductionError:
         if eliminate is True and r.info.get("substituted"):
             # name every equation of the singular combination, including those whose
@@ -222,6 +224,49 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     return r
 
 
+def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
+    """After the linear-combination amendment: the reduced system must have as many degrees
+    of freedom as the model. For the connected parts of the model that contain the replaced
+    equations, the amended system (structural analysis now succeeds on it, the index-1 check
+    has passed) has ``sum d - sum c`` of its offsets; the model has the derivative array's
+    DOF at consistent points (:func:`daekit.analysis.derivative_array_dof`). Where they differ
+    the amended system is not equivalent (a hidden constraint was lost or one too many
+    imposed) and a :class:`ReductionError` names the replaced equations instead of returning
+    a wrong system. ``r.info["amendment_check"]`` says what was compared.
+    """
+    from ..analysis import derivative_array_dof
+
+    names = model.equation_names
+    replaced = []
+    for note in r.info.get("amendments", []):
+        if "equation " in note and " was replaced" in note:
+            nm = note.split("equation ", 1)[1].split(" was replaced")[0].strip("'\"")
+            if nm in names:
+                replaced.append(nm)
+    if not replaced:
+        r.info["amendment_check"] = "not checked (replaced equations unknown)"
+        return
+    try:
+        truth, rows, cols = derivative_array_dof(model, replaced, seed=seed)
+    except DaekitError as exc:
+        r.info["amendment_check"] = f"not checked ({exc})"
+        return
+    c, d = r.info["offsets"]["c"], r.info["offsets"]["d"]
+    dof = int(d[cols].sum() - c[rows].sum())
+    r.info["amendment_check"] = (f"amended system: {dof} DOF, derivative array: {truth} DOF "
+                                 f"(in the {len(rows)} equations coupled to the replaced ones)")
+    if dof != truth:
+        raise ReductionError(
+            f"model {model.name!r}: the linear-combination amendment of the equations "
+            f"{', '.join(repr(x) for x in replaced)} gives a reduced system with {dof} degrees "
+            f"of freedom in the equations coupled to them, but the model has {truth} there "
+            "(derivative array at consistent points): the amended system is not equivalent. "
+            "The cancellation in these equations is not the constant combination the amendment "
+            "assumes; rewrite them so that the structure shows the true dependencies (solve one "
+            "of them for a variable and substitute it), or use daekit.analyze(model) for the "
+            "numeric index and DOF."
+        )
+
 
 # ---------------------------------------------------------------------------- SA amendment
 def _all_symbols(ex: Expansion):
@@ -251,7 +296,7 @@ def _left_null(ex: Expansion, seed: int):
     by one sparse solve with the (nonsingular) earlier part, ``J[R<, C<]^T u< = -J[Rk, C<]^T uk``;
     later blocks do not take part (their rows use columns of later blocks only through the
     triangular structure). Singularity is judged after row and column equilibration by powers
-    of two, with the relative tolerance :data:`daekit.analysis.RANK_RTOL` ``* size *
+    of two, with the relative tolerance :data:`daekit.numerics.RANK_RTOL` ``* size *
     sigma_max`` (so ``1e-12 x' + x = 0`` is an ODE, not a singular system).
     """
     n = ex.n
@@ -323,17 +368,11 @@ def _block_left_null(A: sp.csr_matrix, rows, cols):
     Bs = A[rows][:, cols]
     if len(rows) > _DENSE_LIMIT:
         return None if _lu_nonsingular(Bs) else "big"
-    B = Bs.toarray()
-    dr, dc = _scales(B)
-    Be = B * dr[:, None] * dc[None, :]
-    Uv, sv, _ = np.linalg.svd(Be)
-    m = len(rows)
-    tol = RANK_RTOL * m * sv[0] if sv.size and sv[0] > 0 else np.inf
-    k = int(np.sum(sv <= tol))
-    if k == 0:
+    info = numerics.rank_info(Bs)
+    if info.rank == len(rows):
         return None
-    # u^T B = 0  <=>  (u / dr)^T Be = 0: u = dr * w for w in the left null space of Be
-    return Uv[:, m - k :].T * dr[None, :]
+    # u^T B = 0: the left null vectors, in the block's own (unscaled) coordinates
+    return info.left_null
 
 
 def _extend_left_null(A: sp.csr_matrix, blocks, k: int, W: np.ndarray):
@@ -629,56 +668,18 @@ def _random_points(r: ReducedDAE, seed: int, count: int = 3):
         )
 
 
-def _to_scipy(M: ca.DM) -> sp.csc_matrix:
-    sp_ = M.sparsity()
-    colind, row = sp_.get_ccs()
-    return sp.csc_matrix(
-        (np.asarray(M.nonzeros(), dtype=float), np.asarray(row), np.asarray(colind)),
-        shape=(M.size1(), M.size2()),
-    )
+_to_scipy = numerics.to_scipy
 
 
 def _scales(A) -> tuple[np.ndarray, np.ndarray]:
     """Row and column scale factors (powers of two) that equilibrate ``A`` (dense or sparse):
-    rows first, then columns, as :func:`daekit.analysis.numeric_rank` does. The equilibrated
-    matrix is ``diag(dr) A diag(dc)``; zero rows and columns get factor 1."""
-
-    def pow2(mx):
-        mx = np.asarray(mx, dtype=float).ravel()
-        with np.errstate(divide="ignore"):
-            return np.where(mx > 0, 2.0 ** -np.round(np.log2(np.where(mx > 0, mx, 1.0))), 1.0)
-
-    if sp.issparse(A):
-        A = sp.csr_matrix(A)
-        absA = abs(A)
-        dr = pow2(absA.max(axis=1).toarray())
-        dc = pow2((sp.diags(dr) @ absA).max(axis=0).toarray())
-    else:
-        absA = np.abs(np.asarray(A, dtype=float))
-        if absA.size == 0:
-            return np.ones(absA.shape[0]), np.ones(absA.shape[1])
-        dr = pow2(absA.max(axis=1))
-        dc = pow2((absA * dr[:, None]).max(axis=0))
-    return dr, dc
-
-
-def _equilibrated(A: sp.spmatrix) -> sp.csc_matrix:
-    dr, dc = _scales(A)
-    return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
+    :func:`daekit.numerics.equilibrate`. The equilibrated matrix is ``diag(dr) A diag(dc)``."""
+    return numerics.equilibrate(A)
 
 
 def _lu_nonsingular(A: sp.spmatrix) -> bool:
-    """Cheap test (no dense SVD): sparse LU of the equilibrated matrix, every pivot above
-    ``RANK_RTOL * n`` times the largest."""
-    n = A.shape[0]
-    if n == 0:
-        return True
-    try:
-        lu = spla.splu(_equilibrated(A))
-    except RuntimeError:  # exactly singular
-        return False
-    u = np.abs(lu.U.diagonal())
-    return bool(u.size == 0 or (u.max() > 0 and u.min() > RANK_RTOL * n * u.max()))
+    """Cheap test (no dense SVD): :func:`daekit.numerics.sparse_nonsingular`."""
+    return numerics.sparse_nonsingular(A)
 
 
 def _singular_rows(A: sp.csc_matrix):
@@ -715,22 +716,52 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
     when ``M`` is nonsingular (smallest singular value above ``RANK_RTOL * n * sigma_max``)."""
     if not np.all(np.isfinite(M)) or M.size == 0:
         return None
-    dr, dc = _scales(M)
-    U, s, _ = np.linalg.svd(M * dr[:, None] * dc[None, :])
-    tol = RANK_RTOL * M.shape[0] * s[0] if s[0] > 0 else np.inf
-    rank = int(np.sum(s > tol))
-    if rank == M.shape[0]:
+    info = numerics.rank_info(M)
+    if info.rank == M.shape[0]:
         return None
-    w = np.linalg.norm(U[:, rank:], axis=1)
-    return sorted(rows[w > 1e-6 * w.max()].tolist())
+    return sorted(rows[info.deficient_rows(1e-6)].tolist())
+
+
+#: Reduced systems with at most this many unknowns are checked at consistent points too.
+CONSISTENT_CHECK_LIMIT = 1000
+
+
+def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
+    """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
+    or None (nonsingular at one of them, or no consistent point found, or too big); sets
+    ``r.info["index1_check"]``."""
+    from ..points import reduced_consistent_point
+
+    if r.nx + r.nz > CONSISTENT_CHECK_LIMIT:
+        r.info["index1_check"] = "passed"
+        r.info["index1_check_at"] = "a random point (too big for a consistent one)"
+        return None
+    bad = None
+    for k in range(2):
+        cp = reduced_consistent_point(r, seed + 1000 * k)
+        if cp is None:
+            r.info["index1_check"] = "passed"
+            r.info["index1_check_at"] = "a random point (no consistent point found)"
+            return None
+        A = _to_scipy(f(*cp))
+        if not np.all(np.isfinite(A.data)):
+            continue
+        bad = _singular_rows(A)
+        if bad is None:
+            r.info["index1_check"] = "passed"
+            r.info["index1_check_at"] = "a consistent point"
+            return None
+    return bad
 
 
 def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     """Raise :class:`ReductionError` unless ``d alg / d z`` of ``r`` is nonsingular.
 
-    Evaluated (sparse) at ``points`` random points; one finite nonsingular evaluation suffices
-    (a matrix of analytic functions that is nonsingular at one point is nonsingular almost
-    everywhere). The message names the algebraic equations in the singular combination.
+    Evaluated (sparse) at ``points`` random points, and where it is nonsingular there, at up
+    to two consistent points (``alg = 0`` and the invariants hold, :mod:`daekit.points`): the
+    index is a property along solutions, and ``(2 + sin y) * c(y, z)`` as a constraint is
+    regular at random points but singular wherever ``c = 0``. Nonsingular at one consistent
+    point suffices. The message names the algebraic equations in the singular combination.
     """
     if r.nz == 0:  # an ODE (alg has as many rows as z)
         r.info["index1_check"] = "passed"
@@ -753,7 +784,13 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
             finite = True
             bad = _singular_rows(A)
         if bad is None:
-            r.info["index1_check"] = "passed"
+            break
+    if finite and bad is None:
+        # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
+        # still be singular (a constraint times a factor that vanishes there): check at
+        # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
+        bad = _singular_on_solutions(r, f, seed)
+        if bad is None:
             return
     if not finite:
         r.info["index1_check"] = "inconclusive (no finite Jacobian at random points)"
@@ -765,7 +802,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     raise ReductionError(
         f"model {model!r}: the reduced system is not index 1: the Jacobian of the differentiated "
         f"equations {shown} with respect to their highest derivatives (Pryce's system "
-        "Jacobian) is singular at every test point. Structural analysis (Sigma-method/"
+        "Jacobian) is singular at every test point (on the solutions). Structural analysis (Sigma-method/"
         "Pantelides) fails on this model: it underestimates the index because these equations "
         "are dependent in their leading derivatives. Rewrite the model (e.g. substitute one "
         "of these equations into the others to eliminate the shared derivative), or use "

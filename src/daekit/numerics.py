@@ -1,0 +1,417 @@
+"""Scale-invariant numeric linear algebra: the ONE rank routine of daekit.
+
+Every numeric structural decision in daekit -- the system Jacobian's rank (:func:`daekit.analyze`),
+the easy test, the derivative-array index, the index-1 check and the amendment of
+:func:`daekit.reduce_index`, the free and redundant values of :func:`daekit.initialize`, the
+OCP's boundary analysis -- asks the functions of this module, so that they all agree and all
+are invariant under the units of the model:
+
+* Multiplying an equation by a nonzero constant scales a row of every Jacobian; changing a
+  variable's unit scales a column. The matrices are therefore **equilibrated** before any
+  rank decision: rows and columns are scaled by powers of two (exactly, no rounding), by
+  Ruiz's iteration (Ruiz, "A scaling algorithm to equilibrate both rows and columns norms in
+  matrices", RAL-TR-2001-034): ``A <- diag(r) A diag(c)`` with ``r_i = 1/sqrt(max_j |a_ij|)``,
+  ``c_j = 1/sqrt(max_i |a_ij|)``, repeated until every nonzero row and column has its largest
+  entry in ``[1/2, 2]`` (at most ``RUIZ_ITERATIONS`` sweeps). The result does not depend on
+  a prior diagonal scaling of the matrix up to factors of two, so a rank computed from it is
+  (to working precision) invariant under the units.
+* The **relative tolerance**: a singular value ``s`` of the equilibrated matrix counts as zero
+  when ``s <= RANK_RTOL * max(shape) * s_max`` with ``RANK_RTOL = 1e3 * machine epsilon``
+  (about ``2.2e-13``); a pivot of a sparse LU factorization likewise.
+
+Functions: :func:`equilibrate` (the scale factors), :func:`rank` / :func:`rank_info` (dense
+SVD; sparse input is densified only up to ``DENSE_LIMIT`` rows, beyond that the LU-based
+:func:`sparse_rank_deficiency` answers), :func:`null_space` and :func:`left_null_space`,
+:func:`sparse_nonsingular` (the cheap sparse-LU test), :func:`to_scipy` (CasADi ``DM`` to a
+SciPy CSC matrix).
+
+Example
+-------
+>>> import numpy as np
+>>> from daekit.numerics import rank
+>>> A = np.array([[1.0, 2.0], [2.0, 4.0]])
+>>> rank(A), rank(A * [[1e-9], [1e9]]), rank(np.diag([1e-12, 1.0]))
+(1, 1, 2)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
+           "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
+           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "redundant_rows"]
+
+#: Relative tolerance of every rank decision (see the module docstring).
+RANK_RTOL = 1e3 * np.finfo(float).eps
+#: Largest matrix (rows) whose rank is decided by a dense SVD; bigger sparse ones use LU pivots.
+DENSE_LIMIT = 400
+#: Most sweeps of Ruiz's equilibration.
+RUIZ_ITERATIONS = 30
+#: Entries below this fraction of their row's and column's largest (max-norm equilibrated)
+#: do not steer the scaling (rounding residue of exact zeros).
+NOISE = 1e-13
+#: Entries below this fraction of their row's largest (unscaled) count as zero for the scaling.
+ROW_NOISE = 1e-20
+
+
+def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:
+    mx = np.asarray(mx, dtype=float).ravel()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(mx > 0, -np.round(0.5 * np.log2(np.where(mx > 0, mx, 1.0))), 0.0)
+    return np.exp2(e)
+
+
+def _curtis_reid(B) -> tuple[np.ndarray, np.ndarray]:
+    """Log2 row and column factors minimizing ``sum (log2|a_ij| + r_i + c_j)^2`` over the
+    nonzeros (Curtis & Reid, "On the automatic scaling of matrices for Gaussian
+    elimination", J. Inst. Maths Applics 10, 1972): a linear least-squares problem whose
+    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all."""
+    C = sp.coo_matrix(B)
+    keep = C.data > 0
+    rows, cols, vals = C.row[keep], C.col[keep], np.log2(C.data[keep])
+    m, n = C.shape
+    k = rows.size
+    if k == 0:
+        return np.zeros(m), np.zeros(n)
+    # normal equations: [[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[P 1 ...]
+    # (P the pattern), singular along (1, -1) per connected component: a tiny ridge picks the
+    # least-norm solution without changing the scaled matrix
+    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
+    rc = np.bincount(rows, minlength=m).astype(float)
+    cc = np.bincount(cols, minlength=n).astype(float)
+    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
+    sol = spla.spsolve(K, b)
+    return sol[:m], sol[m:]
+
+
+def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column factors ``(dr, dc)``, powers of two, such that ``diag(dr) A diag(dc)``
+    is well scaled whatever the units: first Curtis--Reid's scaling (least squares on the
+    logarithms of the entries' magnitudes: the scaled matrix is the same for ``A`` and for
+    ``D1 A D2``, any nonsingular diagonal ``D1``, ``D2``), then Ruiz's iteration in the max
+    norm until every nonzero row's and column's largest entry lies in ``[1/2, 2]``; zero rows
+    and columns get factor 1. Dense or sparse ``A``.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> A = np.array([[1e6, 0.0], [1.0, 1e-6]])
+    >>> dr, dc = equilibrate(A)
+    >>> B = A * dr[:, None] * dc[None, :]
+    >>> bool(np.all((np.abs(B).max(axis=1) >= 0.5) & (np.abs(B).max(axis=1) <= 2)))
+    True
+    """
+    issparse = sp.issparse(A)
+    if issparse:
+        B = abs(sp.csr_matrix(A, dtype=float))
+        B.data[~np.isfinite(B.data)] = 0.0
+        B.eliminate_zeros()
+    else:
+        B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
+        B = np.where(np.isfinite(B), B, 0.0)
+    m, n = B.shape
+    if m == 0 or n == 0:
+        return np.ones(m), np.ones(n)
+    # entries below ROW_NOISE of their row's largest are rounding residue of exact zeros
+    # (2.5e-31 where a value is 0 up to rounding): no units within 1e-6..1e6 make them
+    # significant, and a column of them only must not be scaled up to unit size
+    if issparse:
+        rmax0 = B.max(axis=1).toarray().ravel()
+        B = B.tocoo()
+        sig = B.data > ROW_NOISE * rmax0[B.row]
+        B = sp.csr_matrix((B.data[sig], (B.row[sig], B.col[sig])), shape=(m, n))
+    else:
+        B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
+    dr, dc = _ruiz(B, np.ones(m), np.ones(n), issparse)
+    # entries below NOISE of both their row's and column's largest (after Ruiz) are rounding
+    # residue (an exact zero at a consistent point computed as 1e-17): they would dominate a
+    # least-squares fit of the logarithms, so Curtis--Reid ignores them
+    S = (sp.diags(dr) @ B @ sp.diags(dc)).tocsr() if issparse else B * dr[:, None] * dc[None, :]
+    if issparse:
+        S.data[S.data <= NOISE] = 0.0
+        S.eliminate_zeros()
+        keep = sp.diags(1.0 / dr) @ S @ sp.diags(1.0 / dc)
+    else:
+        keep = np.where(S > NOISE, B, 0.0)
+    lr, lc = _curtis_reid(keep)
+    dr, dc = np.exp2(np.round(lr)), np.exp2(np.round(lc))
+    return _ruiz(B, dr, dc, issparse)
+
+
+def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:
+    """Ruiz's iteration in the max norm from the factors ``dr``, ``dc``."""
+    for _ in range(RUIZ_ITERATIONS):
+        if issparse:
+            S = sp.diags(dr) @ B @ sp.diags(dc)
+            rmax = S.max(axis=1).toarray().ravel()
+            cmax = S.max(axis=0).toarray().ravel()
+        else:
+            S = B * dr[:, None] * dc[None, :]
+            rmax, cmax = S.max(axis=1), S.max(axis=0)
+        ok_r = (rmax == 0) | ((rmax >= 0.5) & (rmax <= 2.0))
+        ok_c = (cmax == 0) | ((cmax >= 0.5) & (cmax <= 2.0))
+        if ok_r.all() and ok_c.all():
+            break
+        dr = dr * _pow2_inv_sqrt(rmax)
+        dc = dc * _pow2_inv_sqrt(cmax)
+    return dr, dc
+
+
+def equilibrated(A):
+    """``diag(dr) A diag(dc)`` with the factors of :func:`equilibrate` (same kind as ``A``)."""
+    dr, dc = equilibrate(A)
+    if sp.issparse(A):
+        return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
+    return np.asarray(A, dtype=float) * dr[:, None] * dc[None, :]
+
+
+@dataclass
+class RankInfo:
+    """Result of :func:`rank_info`.
+
+    ``rank``; ``rcond`` = ``s_min / s_max`` of the equilibrated matrix (0 when rank
+    deficient); ``left_null`` (``k x m``) and ``null`` (``(n - rank) x n``): bases, as rows, of the
+    left null space and the null space *of the original matrix* (not orthonormal after the
+    scaling is undone); ``dr``, ``dc`` the equilibration factors; ``sv`` the singular values of
+    the equilibrated matrix.
+    """
+
+    rank: int
+    rcond: float
+    left_null: np.ndarray
+    null: np.ndarray
+    dr: np.ndarray
+    dc: np.ndarray
+    sv: np.ndarray
+
+    def deficient_rows(self, rtol: float = 1e-8) -> list[int]:
+        """Rows with weight in the left null space (of the equilibrated matrix, so that every
+        row counts equally): the equations that combine to zero."""
+        if self.left_null.shape[0] == 0:
+            return []
+        w = np.linalg.norm(self.left_null / self.dr[None, :], axis=0)
+        return np.nonzero(w > rtol * w.max())[0].tolist() if w.max() > 0 else []
+
+
+def rank_info(A, rtol: float = RANK_RTOL) -> RankInfo:
+    """Rank, reciprocal condition and null spaces of a (dense, or small sparse) matrix after
+    equilibration; see the module docstring for the tolerance.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> info = rank_info(np.array([[1.0, 1.0], [1e6, 1e6]]))
+    >>> info.rank, info.deficient_rows()
+    (1, [0, 1])
+    """
+    a = A.toarray() if sp.issparse(A) else np.atleast_2d(np.asarray(A, dtype=float))
+    m, n = a.shape
+    dr, dc = equilibrate(a)
+    if a.size == 0:
+        return RankInfo(0, 1.0, np.eye(m), np.eye(n), dr, dc, np.zeros(0))
+    B = a * dr[:, None] * dc[None, :]
+    U, s, Vt = np.linalg.svd(B)
+    if not s.size or s[0] == 0:
+        return RankInfo(0, 0.0, (U.T * dr[None, :]), (Vt * dc[None, :]), dr, dc, s)
+    r = int(np.sum(s > rtol * max(m, n) * s[0]))
+    rcond = float(s[-1] / s[0]) if r == min(m, n) else 0.0
+    # u^T B = 0 -> (dr * u)^T A = 0;  B v = 0 -> A (dc * v) = 0
+    left = U[:, r:].T * dr[None, :]
+    right = Vt[r:] * dc[None, :]
+    return RankInfo(r, rcond, left, right, dr, dc, s)
+
+
+def rank(A, rtol: float = RANK_RTOL) -> int:
+    """Numeric rank of ``A`` (dense, or sparse) after equilibration.
+
+    Sparse matrices with more than ``DENSE_LIMIT`` rows are not densified: for a square one
+    the rank is ``n`` minus the count of tiny LU pivots (:func:`sparse_rank_deficiency`).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> rank(np.array([[1e-8, 1.0], [2e-8, 2.0]]))
+    1
+    """
+    if sp.issparse(A) and A.shape[0] > DENSE_LIMIT and A.shape[0] == A.shape[1]:
+        return A.shape[0] - sparse_rank_deficiency(A, rtol)
+    return rank_info(A, rtol).rank
+
+
+def null_space(A, rtol: float = RANK_RTOL) -> np.ndarray:
+    """A basis (columns) of the null space of ``A`` (after equilibration)."""
+    return rank_info(A, rtol).null.T
+
+
+def left_null_space(A, rtol: float = RANK_RTOL) -> np.ndarray:
+    """A basis (rows) of the left null space of ``A`` (after equilibration): ``W @ A ~ 0``.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> W = left_null_space(np.array([[1.0, 2.0], [3.0, 6.0]]))
+    >>> W.shape, bool(np.allclose(W @ np.array([[1.0, 2.0], [3.0, 6.0]]), 0))
+    ((1, 2), True)
+    """
+    return rank_info(A, rtol).left_null
+
+
+def redundant_rows(C, F, rtol: float = 1e-8) -> list[int]:
+    """Rows of ``F`` implied by the rows of ``C`` and by the rows of ``F`` before them that
+    are not (in order), decided scale-invariantly.
+
+    The columns are scaled as in the equilibrated ``C`` (stacked on ``F``); ``V`` is an
+    orthonormal basis of the directions ``C`` leaves free (its null space); each row of
+    ``F``, scaled and normalized, is projected on ``V``: when less than ``rtol`` of it is left
+    it is redundant; else ``V`` loses that direction.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> C = np.array([[-1e6, 1.0]])             # z - 1e6 x = 0
+    >>> redundant_rows(C, np.array([[1.0, 0.0], [0.0, 1.0]]))   # x fixed, then z
+    [1]
+    """
+    C = C.toarray() if sp.issparse(C) else np.atleast_2d(np.asarray(C, dtype=float))
+    F = F.toarray() if sp.issparse(F) else np.atleast_2d(np.asarray(F, dtype=float))
+    n = F.shape[1]
+    if F.shape[0] == 0:
+        return []
+    _, dc = equilibrate(np.vstack([C, F]) if C.size else F)
+    if C.shape[0]:
+        info = rank_info(C * dc[None, :])
+        # null vectors of C diag(dc), orthonormalized in those same coordinates
+        V = np.linalg.qr(info.null.T)[0] if info.null.shape[0] else np.zeros((n, 0))
+    else:
+        V = np.eye(n)
+    out = []
+    W = np.zeros((n, 0))  # accepted directions: orthonormal, inside span(V)
+    for k, row in enumerate(F * dc[None, :]):
+        nrm = np.linalg.norm(row)
+        if nrm == 0 or V.shape[1] == W.shape[1]:
+            out.append(k)
+            continue
+        row = row / nrm
+        p = V @ (V.T @ row)
+        for _ in range(2):  # twice, for orthogonality to working precision
+            p = p - W @ (W.T @ p)
+        pn = np.linalg.norm(p)
+        if pn <= rtol:
+            out.append(k)
+        else:
+            W = np.hstack([W, (p / pn)[:, None]])
+    return out
+
+
+def _splu_pivots(A) -> np.ndarray | None:
+    try:
+        lu = spla.splu(sp.csc_matrix(A), permc_spec="COLAMD")
+    except RuntimeError:  # exactly singular
+        return None
+    return np.abs(lu.U.diagonal())
+
+
+def sparse_rank_deficiency(A, rtol: float = RANK_RTOL) -> int:
+    """Number of LU pivots of the equilibrated square sparse ``A`` at or below ``rtol * n``
+    times the largest (at least 1 when SuperLU finds ``A`` exactly singular). An estimate of
+    the rank deficiency: exact for a zero pivot, and LU with partial pivoting reveals the rank
+    of all but contrived matrices.
+
+    Example
+    -------
+    >>> import scipy.sparse as sp
+    >>> sparse_rank_deficiency(sp.csc_matrix([[1.0, 1.0], [1.0, 1.0]]))
+    1
+    """
+    n = A.shape[0]
+    if n == 0:
+        return 0
+    d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
+    if d is None:
+        return 1
+    if not d.size or d.max() == 0:
+        return n
+    return max(int(np.sum(d <= rtol * n * d.max())), 0)
+
+
+def sparse_nonsingular(A, rtol: float = RANK_RTOL) -> bool:
+    """Cheap test, no dense SVD: every pivot of the sparse LU of the equilibrated square ``A``
+    is above ``rtol * n`` times the largest.
+
+    Example
+    -------
+    >>> import scipy.sparse as sp
+    >>> sparse_nonsingular(sp.csc_matrix([[1e-12, 0.0], [0.0, 1e12]]))
+    True
+    """
+    n = A.shape[0]
+    if n == 0:
+        return True
+    d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
+    return bool(d is not None and (d.size == 0 or (d.max() > 0 and d.min() > rtol * n * d.max())))
+
+
+def sparse_rcond(A) -> float:
+    """``min |pivot| / max |pivot|`` of the sparse LU of the equilibrated square ``A`` (0 when
+    singular): a cheap reciprocal-condition estimate."""
+    n = A.shape[0]
+    if n == 0:
+        return 1.0
+    d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
+    if d is None or not d.size or d.max() == 0:
+        return 0.0
+    return float(d.min() / d.max())
+
+
+def to_scipy(M) -> sp.csc_matrix:
+    """A CasADi ``DM`` (or anything ``casadi.DM`` accepts) as a SciPy CSC matrix, keeping its
+    sparsity.
+
+    Example
+    -------
+    >>> import casadi as ca
+    >>> to_scipy(ca.DM(ca.Sparsity.diag(2), [1, 2])).nnz
+    2
+    """
+    M = ca.DM(M)
+    colind, row = M.sparsity().get_ccs()
+    return sp.csc_matrix(
+        (np.asarray(M.nonzeros(), dtype=float), np.asarray(row, dtype=np.int64),
+         np.asarray(colind, dtype=np.int64)),
+        shape=(M.size1(), M.size2()),
+    )
+
+
+class SparseFunction:
+    """A CasADi function of one sparse matrix output, evaluated straight into SciPy CSR: the
+    pattern is converted once, each call returns the nonzeros as one dense vector (much
+    faster than converting a ``DM`` element by element).
+
+    Example
+    -------
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x", 2)
+    >>> f = SparseFunction([x], ca.diag(x))
+    >>> f(np.array([1.0, 2.0])).toarray().tolist()
+    [[1.0, 0.0], [0.0, 2.0]]
+    """
+
+    def __init__(self, inputs, expr: ca.SX) -> None:
+        expr = ca.SX(expr)
+        self.shape = expr.shape
+        colind, row = expr.sparsity().get_ccs()
+        # CSC of expr == CSR of its transpose
+        self.indptr = np.asarray(colind, dtype=np.int64)
+        self.indices = np.asarray(row, dtype=np.int64)
+        self.f = ca.Function("sparse_f", list(inputs), [expr.nz[:] if expr.nnz() else ca.SX(0, 1)])
+
+    def __call__(self, *args) -> sp.csr_matrix:
+        data = np.asarray(self.f(*args), dtype=float).ravel() if self.indices.size else np.zeros(0)
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=self.shape).tocsr()

@@ -61,6 +61,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .. import numerics
 from ..errors import ReductionError
 from ..model import Model
 from ..numerics import RANK_RTOL
@@ -68,20 +69,17 @@ from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
 from ..wording import count
+from .assemble import (
+    all_symbols,
+    assemble,
+    invariant_rows,
+    pair_names,
+    state_pairs,
+    top_equations,
+)
 from .differentiate import derivative_name
 from .invariants import attach_declared, declared_dummy
-from .reduce import (
-    _all_symbols,
-    _assemble,
-    _invariants,
-    _pair_names,
-    _scales,
-    _states,
-    _to_scipy,
-    _top_equations,
-    amended_expansion,
-    check_index1,
-)
+from .reduce import OTHER_METHODS, amended_expansion, check_index1
 
 __all__ = ["dummy_derivatives", "reselect", "selection_condition", "map_values"]
 
@@ -303,7 +301,7 @@ def _deficient_rows(A: np.ndarray, which: bool = True):
         return None
     if not np.all(np.isfinite(A)):
         return np.arange(m)
-    dr, dc = _scales(A)
+    dr, dc = numerics.equilibrate(A)
     Ae = A * dr[:, None] * dc[None, :]
     s = np.linalg.svd(Ae, compute_uv=False)
     tol = RANK_RTOL * max(A.shape) * s[0] if s.size and s[0] > 0 else np.inf
@@ -387,13 +385,13 @@ def dummy_derivatives(
     """
     ex, amendments = amended_expansion(model, seed=seed)
     n, c, d = ex.n, ex.c, ex.d
-    top = _top_equations(ex)
+    top = top_equations(ex)
     hi = ex.unknown(d, range(n))
     Jsym = ca.jacobian(top, hi)
-    Xs, Us = _all_symbols(ex)
+    Xs, Us = all_symbols(ex)
     Jf = ca.Function("J", [model.t, Xs, Us, model.parameter_symbols], [Jsym])
     t0, X0, U0, P0 = _point_vector(ex, point, seed)
-    J = _to_scipy(ca.DM(Jf(t0, X0, U0, P0))).tocsr()
+    J = numerics.to_scipy(ca.DM(Jf(t0, X0, U0, P0))).tocsr()
     if not np.all(np.isfinite(J.data)):
         raise ReductionError(
             f"model {model.name!r}: the system Jacobian is not finite at the selection point; "
@@ -438,16 +436,16 @@ def dummy_derivatives(
         blocks += [(Rb, Cb, cols) for Rb, Cb, cols, _ in chosen]
         selected = S
 
-    states = _states(ex, skip=lambda j, k: (j, k) in dummy)
+    states = state_pairs(ex, skip=lambda j, k: (j, k) in dummy)
     dpairs = sorted(dummy, key=lambda jk: (jk[1], jk[0]))
     zpairs = [(j, int(d[j])) for j in range(n)] + dpairs
     alg = ca.vertcat(*ex.levels)
     alg_names = [derivative_name(eq_names[i], k) for k, rk in enumerate(ex.rows) for i in rk]
-    inv, inv_names, chains = _invariants(ex)
-    r = _assemble(ex, states, zpairs, alg, inv, inv_names, "dummy_derivatives")
+    inv, inv_names, chains = invariant_rows(ex)
+    r = assemble(ex, states, zpairs, alg, inv, inv_names, "dummy_derivatives")
     r.state_selection = {
         "states": list(r.x_names),
-        "dummies": _pair_names(ex, dpairs),
+        "dummies": pair_names(ex, dpairs),
         "stages": stages,
         "condition": max([st["condition"] for st in stages], default=1.0),
         "point": dict(point) if point else None,
@@ -504,7 +502,7 @@ def selection_condition(r: ReducedDAE, x, z, u=None, p=None, t: float = 0.0) -> 
         t = float(t)
     except (TypeError, ValueError):
         raise ReductionError(f"selection_condition: t must be one number, got {t!r}") from None
-    J = _to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
+    J = numerics.to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
     worst = 1.0
     for R, C, cols in r.info["selection_blocks"]:
         worst = max(worst, _block_condition(_dense(J, R, C), cols))
@@ -572,3 +570,6 @@ def reselect(r: ReducedDAE, point, seed: int = 0) -> ReducedDAE:
     if isinstance(point, tuple) and len(point) == 2:
         point = _named_values(r, point[0], point[1])
     return dummy_derivatives(r.model, point=point, seed=seed)
+
+
+OTHER_METHODS["dummy_derivatives"] = dummy_derivatives  # reduce_index(m, method=...)

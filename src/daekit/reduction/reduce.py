@@ -49,6 +49,8 @@ Example
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import casadi as ca
 import numpy as np
 import scipy.linalg as sla
@@ -57,10 +59,18 @@ import scipy.sparse.linalg as spla
 
 from .. import numerics
 from ..errors import DaekitError, ReductionError
-from ..model import Model, element_name
+from ..model import Model
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
+from .assemble import (
+    all_symbols,
+    assemble,
+    invariant_rows,
+    pair_names,
+    state_pairs,
+    top_equations,
+)
 from .differentiate import Expansion, derivative_name, expand
 from .eliminate import Elimination, find_eliminations
 from .invariants import attach_declared
@@ -68,6 +78,11 @@ from .invariants import attach_declared
 __all__ = ["reduce_index", "check_index1"]
 
 _DENSE_LIMIT = 400
+
+#: Reductions other than Pryce's scheme, by ``method=`` name: each registers itself here
+#: (``reduction/dummy.py`` adds ``"dummy_derivatives"``), so that this module never imports
+#: the modules built on it.
+OTHER_METHODS: dict[str, Callable[..., ReducedDAE]] = {}
 
 
 @limit_blas_threads
@@ -137,10 +152,8 @@ def reduce_index(
     (['der(u)', 'der(u,2)'], ['u', 'der(u)', 'der(u,2)'])
     """
     model = Model.require(model, "reduce_index")  # a LagrangianSystem: its .model()
-    if method == "dummy_derivatives":
-        from .dummy import dummy_derivatives
-
-        return dummy_derivatives(model, point=point, check=check, seed=seed)
+    if method in OTHER_METHODS:
+        return OTHER_METHODS[method](model, point=point, check=check, seed=seed)
     if method != "differentiate":
         raise ReductionError(
             f"unknown reduction method {method!r}: use 'differentiate' or 'dummy_derivatives'"
@@ -187,7 +200,7 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     el = find_eliminations(ex, highest=eliminate is True) if eliminate else Elimination()
     gone = set(el.pairs)
     gone_eqs = set(el.equations)
-    states = _states(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
+    states = state_pairs(ex, skip=(lambda j, k: (j, k) in gone) if gone else None)
     top_gone = np.zeros(n, dtype=bool)
     for j, k in el.pairs:
         if k == int(d[j]):
@@ -196,16 +209,16 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     keep = np.ones(n, dtype=bool)
     keep[np.asarray(el.equations, dtype=np.int64)] = False
     rows = np.nonzero(keep)[0].tolist()
-    alg = _top_equations(ex)
+    alg = top_equations(ex)
     if gone_eqs:
         alg = alg[rows]
     eq_names = ex.equation_names
     alg_names = [derivative_name(eq_names[i], int(c[i])) for i in rows]
-    inv, inv_names, chains = _invariants(ex, skip=gone_eqs)
-    r = _assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
+    inv, inv_names, chains = invariant_rows(ex, skip=gone_eqs)
+    r = assemble(ex, states, zpairs, alg, inv, inv_names, "differentiate")
     if el.pairs:
         r.ode, r.alg, r.invariants = el.substitute([r.ode, r.alg, r.invariants])
-        for nm, e in zip(_pair_names(ex, el.pairs), ca.vertsplit(el.defs), strict=True):
+        for nm, e in zip(pair_names(ex, el.pairs), ca.vertsplit(el.defs), strict=True):
             r.variables[nm] = e
     r.info["alg_names"] = alg_names
     r.info["chains"] = chains
@@ -217,7 +230,7 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
     done = [
         ({"variable": nm, "equation": ex.equation_names[i], "expression": r.variables[nm]},
          int(c[i]) == 0)
-        for i, nm in zip(el.equations, _pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
+        for i, nm in zip(el.equations, pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
     r.info["eliminated"] = [e for e, top in done if not top]
     r.info["substituted"] = [e for e, top in done if top]
@@ -269,15 +282,6 @@ def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
 
 
 # ---------------------------------------------------------------------------- SA amendment
-def _all_symbols(ex: Expansion):
-    """All unknown symbols up to order d_j and control symbols up to the needed order."""
-    pairs = [(j, k) for j in range(ex.n) for k in range(int(ex.d[j]) + 1)]
-    X = _pair_symbols(ex, pairs)
-    U = [var.der(k) for var in ex.model.controls
-         for k in range(ex.control_orders.get(var.name, 0) + 1)]
-    return X, (ca.vertcat(*U) if U else ca.SX(0, 1))
-
-
 def _left_null(ex: Expansion, seed: int):
     """Constant left null vectors of Pryce's system Jacobian ``J``, found numerically.
 
@@ -302,9 +306,9 @@ def _left_null(ex: Expansion, seed: int):
     n = ex.n
     if n == 0:
         return None
-    top = _top_equations(ex)
+    top = top_equations(ex)
     hi = ex.unknown(ex.d, range(n))
-    X, U = _all_symbols(ex)
+    X, U = all_symbols(ex)
     p = ex.model.parameter_symbols
     Jsym = ca.jacobian(top, hi)
     f = ca.Function("J", [ex.model.t, X, U, p], [Jsym])
@@ -495,160 +499,6 @@ def _cancels(parts: ca.SX, lead: ca.SX, model: Model, seed: int, rtol: float = 1
         if checked == 3:
             return True
     return False
-
-
-# ---------------------------------------------------------------------------- building blocks
-def _states(ex: Expansion, skip):
-    """States x_j^(k), k < d_j, grouped by variable then order.
-
-    ``skip``: None or a boolean function (j, k) -> the derivative is not a state (a dummy
-    derivative, or an eliminated one). Returns the list of (j, k).
-    """
-    out = []
-    j0 = 0
-    for var in ex.model.unknown_variables:
-        js = range(j0, j0 + var.size)
-        j0 += var.size
-        top = max((int(ex.d[j]) for j in js), default=0)
-        for k in range(top):
-            for j in js:
-                if ex.d[j] > k and (skip is None or not skip(j, k)):
-                    out.append((j, k))
-    return out
-
-
-def _pair_symbols(ex: Expansion, pairs, shift: int = 0) -> ca.SX:
-    """Symbols ``x_j^(k + shift)`` for the pairs ``(j, k)``, in order."""
-    return ex.model.symbols_at([j for j, _ in pairs], [k + shift for _, k in pairs])
-
-
-def _top_equations(ex: Expansion) -> ca.SX:
-    """F_i^(c_i) for all i, in equation order."""
-    n = ex.n
-    parts = []
-    idx_of = np.empty(n, dtype=np.int64)
-    offset = 0
-    # concatenate all levels once, then pick one row per equation
-    for k, rk in enumerate(ex.rows):
-        top = rk[ex.c[rk] == k]
-        idx_of[top] = offset + ex.pos[k][top]
-        offset += len(rk)
-    parts = ca.vertcat(*ex.levels)
-    return parts[idx_of.tolist()]
-
-
-def _invariants(ex: Expansion, skip=()):
-    """F_i^(k), k < c_i, ordered by equation then k; their names; and the chains.
-
-    Equations in ``skip`` (eliminated) are left out; a chain's ``"alg"`` is the row of its
-    top equation ``F_i^(c_i)`` among the algebraic equations that are kept.
-    """
-    n = ex.n
-    offs = np.cumsum([0] + [len(r) for r in ex.rows])
-    idx, names, chains = [], [], []
-    alg_row = 0
-    for i in range(n):
-        if i in skip:
-            continue
-        alg_row += 1
-        ci = int(ex.c[i])
-        if ci == 0:
-            continue
-        chain = []
-        for k in range(ci):
-            chain.append(len(idx))
-            idx.append(int(offs[k] + ex.pos[k][i]))
-            names.append(derivative_name(ex.equation_names[i], k))
-        chains.append(
-            {"equation": ex.equation_names[i], "row": i, "invariants": chain, "alg": alg_row - 1}
-        )
-    allrows = ca.vertcat(*ex.levels)
-    inv = allrows[idx] if idx else ca.SX(0, 1)
-    return inv, names, chains
-
-
-def _element_names(var, k: int) -> list[str]:
-    """``["der(p)[0]", "der(p)[1]", ...]``: the names of ``var``'s order-``k`` elements."""
-    base = element_name(var.name, 1, 0, k)
-    return [base] if var.size == 1 else [f"{base}[{i}]" for i in range(var.size)]
-
-
-def _pair_names(ex: Expansion, pairs) -> list[str]:
-    """Original names ``"der(p)[0]"`` of the pairs ``(j, k)``."""
-    cache: dict[tuple[int, int], list[str]] = {}
-    out = []
-    unknowns = ex.unknowns
-    for j, k in pairs:
-        var, i = unknowns[j]
-        key = (id(var), k)
-        if key not in cache:
-            cache[key] = _element_names(var, k)
-        out.append(cache[key][i])
-    return out
-
-
-def _assemble(ex, states, zpairs, alg, invariants, invariant_names, method):
-    """ReducedDAE from the pieces: states ``x_j^(k)`` (pairs) with ``(x_j^(k))' = x_j^(k+1)``,
-    algebraic unknowns (pairs), equations; fills u (with input derivatives), p and the
-    variable map."""
-    model = ex.model
-    x = _pair_symbols(ex, states)
-    ode = _pair_symbols(ex, states, shift=1)
-    x_names = _pair_names(ex, states)
-    z = _pair_symbols(ex, zpairs)
-    z_names = _pair_names(ex, zpairs)
-    # inputs: the controls, then their derivatives up to the order needed
-    u_parts, u_names, input_derivatives = [], [], []
-    for var in model.controls:
-        u_parts.append(var.sym)
-        u_names += [var.element(i) for i in range(var.size)]
-    for var in model.controls:
-        for k in range(1, ex.control_orders.get(var.name, 0) + 1):
-            u_parts.append(var.der(k))
-            u_names += [var.element(i, k) for i in range(var.size)]
-            input_derivatives.append(element_name(var.name, 1, 0, k))
-    u = ca.vertcat(*u_parts) if u_parts else ca.SX(0, 1)
-    p = model.parameter_symbols
-    p_names = [v.element(i) for v in model.parameters for i in range(v.size)]
-    variables: dict[str, ca.SX] = {}
-    # whole vectors: one vertsplit per variable and order, names made in one comprehension
-    j0 = 0
-    for var in model.unknown_variables:
-        dj = ex.d[j0:j0 + var.size]
-        j0 += var.size
-        for k in range(int(dj.max()) + 1 if dj.size else 0):
-            elems = ca.vertsplit(var.der(k))
-            names = _element_names(var, k)
-            if bool(np.all(dj >= k)):
-                variables.update(zip(names, elems, strict=True))
-            else:
-                variables.update((names[i], elems[i]) for i in np.nonzero(dj >= k)[0])
-    for var in model.controls:
-        for k in range(ex.control_orders.get(var.name, 0) + 1):
-            variables.update(zip(_element_names(var, k), ca.vertsplit(var.der(k)), strict=True))
-    for var in model.parameters:
-        variables.update(zip(_element_names(var, 0), ca.vertsplit(var.sym), strict=True))
-    return ReducedDAE(
-        t=model.t,
-        x=x,
-        z=z,
-        u=u,
-        p=p,
-        ode=ode,
-        alg=alg,
-        invariants=invariants,
-        invariant_names=invariant_names,
-        x_names=x_names,
-        z_names=z_names,
-        u_names=u_names,
-        p_names=p_names,
-        p_values=model.parameter_values.copy(),
-        variables=variables,
-        input_derivatives=input_derivatives,
-        control_names=[v.name for v in model.controls],
-        method=method,
-        model=model,
-    )
 
 
 # ---------------------------------------------------------------------------- index-1 check

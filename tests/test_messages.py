@@ -54,3 +54,9 @@ def test_array_initial_state_off_the_manifold_is_refused_by_name():
         dk.simulate(r, np.linspace(0, 1, 11), np.array([1.0, 0.0, 0.3, 0.0]))
     ok = dk.simulate(r, np.linspace(0, 1, 11), np.array([0.6, 0.0, -0.8, 0.0]))
     assert abs(ok["x"][-1] ** 2 + ok["y"][-1] ** 2 - 1) < 1e-6
+
+
+def test_misspelt_keyword_in_an_ensemble_is_named_once_before_any_sample_runs():
+    r = dk.reduce_index(dk.examples.pendulum_planar())
+    with pytest.raises(dk.InputError, match=r"'stabilisation' is not an option"):
+        dk.ensemble(r, [0.0, 1.0], [{"L": 1.0}], executor="serial", stabilisation="projection")

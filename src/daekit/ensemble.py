@@ -707,6 +707,14 @@ def _check_simulate_options(opts: Mapping) -> None:
                          + ", ".join(repr(s) for s in STABILIZATIONS))
     if opts.get("method", "idas") not in ("idas", "rattle"):
         raise ModelError(f"ensemble: unknown method {opts['method']!r}; use 'idas' or 'rattle'")
+    if opts.get("method", "idas") == "idas":
+        import inspect
+
+        from .simulate.dispatch import simulate
+        from .simulate.system import check_idas_options
+
+        own = set(inspect.signature(simulate).parameters)
+        check_idas_options({k: v for k, v in opts.items() if k not in own})
     for name in ("rtol", "atol"):
         v = opts.get(name, 1e-8)
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)

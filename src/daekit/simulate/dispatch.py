@@ -24,7 +24,7 @@ from ..wording import count
 from .driver import Driver
 from .idas import run_algebraic, run_idas
 from .projection import DriftMonitor, Projector, default_drift_tol
-from .system import system_for
+from .system import EVENT_KEYWORDS, check_idas_options, system_for
 from .trajectory import Trajectory
 
 __all__ = ["simulate", "STABILIZATIONS"]
@@ -288,7 +288,8 @@ def simulate(
         return traj
     if method != "idas":
         raise InputError(f"simulate: unknown method {method!r}; use 'idas' or 'rattle'")
-    event_keys = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
+    check_idas_options(options)  # a misspelt keyword is named before anything runs
+    event_keys = EVENT_KEYWORDS
     if events and not monitors:
         from .events import has_events, simulate_events
 

@@ -577,6 +577,32 @@ def _sparse_solve(A: sp.csc_matrix, b: np.ndarray) -> np.ndarray:
     return spla.lsqr(A, b, atol=1e-15, btol=1e-15, iter_lim=10 * max(A.shape))[0]
 
 
+#: Keywords of ``simulate`` that are not IDAS options (the events path's own settings).
+EVENT_KEYWORDS = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
+
+
+def check_idas_options(options: Mapping) -> None:
+    """Raise :class:`~daekit.inputs.InputError` naming the first keyword of ``options`` that
+    CasADi's IDAS does not take (or takes with another type), before any work is done: a
+    trivial integrator is built with them (about a millisecond).
+
+    >>> check_idas_options({"max_num_steps": 1000})
+    >>> try:
+    ...     check_idas_options({"max_num_stepz": 1000})
+    ... except ValueError as err:
+    ...     print(str(err)[:90])
+    simulate: 'max_num_stepz' is not an option of CasADi's IDAS integrator. Did you mean 'max_
+    """
+    opts = {k: v for k, v in options.items() if k not in EVENT_KEYWORDS}
+    if not opts:
+        return
+    x = ca.SX.sym("x")
+    try:
+        ca.integrator("daekit_check", "idas", {"x": x, "ode": -x}, 0.0, [1.0], opts)
+    except RuntimeError as exc:
+        raise _option_error(exc, opts) from None
+
+
 _UNKNOWN_OPTION = re.compile(r"Unknown option: (\w+)")
 _SUGGESTION = re.compile(r'> "(\w+)"')
 

@@ -700,7 +700,7 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
 #: rows than this are tested at a random point unless ``analyze(..., consistent=True)``.
-POINT_LIMIT = 2000
+POINT_LIMIT = 100
 
 
 @limit_blas_threads
@@ -875,13 +875,17 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 #: Largest connected part (unknowns) whose structural index is checked against the derivative
 #: array when structural analysis succeeds (the structural index is only an upper bound).
 CONFIRM_LIMIT = 20
+#: ... and at most this many unknowns times levels of its derivative array (the array of a
+#: high-index part grows fast: chained pendula p = 5, index 11, took 10 s to confirm)
+CONFIRM_ARRAY_LIMIT = 60
 
 
 def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor: int):
     """Where structural analysis succeeds Pryce's index is an upper bound of the differential
     index. The model's index is the largest of its connected parts', so only the parts that
     attain the largest structural index are checked, largest first, each only if it has at
-    most ``CONFIRM_LIMIT`` unknowns: the derivative array (at consistent points) up to one
+    most ``CONFIRM_LIMIT`` unknowns (and ``CONFIRM_ARRAY_LIMIT`` unknowns times levels): the
+    derivative array (at consistent points) up to one
     level below its structural index. Returns ``(index, [(equations, structural, found)])``
     when some part's index is lower and the model's index drops, else None."""
     parts = []
@@ -904,7 +908,7 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
         if nu < top:
             found.append(nu)
             continue
-        if len(cols) > CONFIRM_LIMIT:
+        if len(cols) > CONFIRM_LIMIT or len(cols) * nu > CONFIRM_ARRAY_LIMIT:
             return None
         try:
             res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True)

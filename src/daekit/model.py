@@ -375,16 +375,7 @@ class Model:
                 "(e.g. the vector v itself rather than the diagonal matrix ca.diag(v))"
             )
         sx = ca.densify(sx)
-        tname = self.t.element_hash()
-        for s in ca.symvar(sx):
-            h = s.element_hash()
-            if h != tname and h not in self._lookup:
-                raise ModelError(
-                    f"model {self.name!r}, equation {name!r} uses the symbol {s.name()!r}, which "
-                    "this model did not declare; create it with m.state/m.algebraic/m.variable/"
-                    "m.control/m.parameter (symbols made with ca.SX.sym directly are not model "
-                    "variables)"
-                )
+        self._check_symbols(sx, f"equation {name!r}")
         bad = _nonfinite_constants(sx)
         if bad:
             raise ModelError(
@@ -454,8 +445,9 @@ class Model:
             if h != tname and h not in self._lookup:
                 raise ModelError(
                     f"model {self.name!r}, {where} uses the symbol {s.name()!r}, which this model "
-                    "did not declare; build it from the model's own symbols (m.state, m.der, "
-                    "m.algebraic, m.control, m.parameter, m.t)"
+                    "did not declare; create it with m.state/m.algebraic/m.variable/m.control/"
+                    "m.parameter and build from the model's own symbols (m.der, m.t); symbols "
+                    "made with ca.SX.sym directly are not model variables"
                 )
 
     def event(self, expr, name: str | None = None, direction: int = 0, terminal: bool = False,

@@ -193,28 +193,38 @@ def _table(rows: list[RemedyResult]) -> str:
     return "\n".join(lines)
 
 
-def _drift_figure(rows: list[RemedyResult], title: str, path: Path) -> None:
+def _drift_figure(rows: list[RemedyResult], title: str, path: Path,
+                  units: tuple[str, str, str] = ("model units", "model units / s", "J")) -> None:
+    """Drift and energy error of each remedy over time, as running maxima (envelopes): the
+    largest value so far, so that curves neither fill solid bands nor dive to the floor where a
+    value happens to be exactly zero; one colour per remedy (:data:`daekit.plot.REMEDY_COLORS`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .plot import remedy_color
+
+    def envelope(ax, t, y, row):
+        env = np.maximum.accumulate(np.abs(y))
+        keep = env > 0  # before the first nonzero value there is nothing to draw on a log axis
+        ax.semilogy(t[keep], np.maximum(env[keep], 1e-17), label=row.remedy, lw=1.4,
+                    color=remedy_color(row.remedy))
+
     fig, axes = plt.subplots(3, 1, figsize=(10, 8.5), sharex=True)
     e0 = rows[0].energy[0]
     for row in rows:
         tr = row.trajectory
-        axes[2].semilogy(tr.t, np.maximum(np.abs(row.energy - e0), 1e-17), label=row.remedy, lw=1)
+        envelope(axes[2], tr.t, row.energy - e0, row)
         for ax, order in zip(axes[:2], (0, 1)):
             cols = _level_columns(tr, order)
-            if not cols:
-                continue
-            y = np.max(np.abs(tr.invariants[:, cols]), axis=1)
-            ax.semilogy(tr.t, np.maximum(y, 1e-17), label=row.remedy, lw=1)
-    axes[0].set_ylabel("max |c|  (position level)")
-    axes[1].set_ylabel("max |c'|  (velocity level)")
-    axes[2].set_ylabel("|E - E(0)|  (energy)")
+            if cols:
+                envelope(ax, tr.t, np.max(np.abs(tr.invariants[:, cols]), axis=1), row)
+    axes[0].set_ylabel(f"max |c| so far\n(position level) [{units[0]}]")
+    axes[1].set_ylabel(f"max |c'| so far\n(velocity level) [{units[1]}]")
+    axes[2].set_ylabel(f"max |E - E(0)| so far\n(energy) [{units[2]}]")
     axes[2].set_xlabel("t [s]")
-    axes[0].set_title(title)
+    axes[0].set_title(title + "\n(running maxima: the largest value up to each time)", fontsize=11)
     axes[0].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     for ax in axes:
         ax.grid(True, which="major", alpha=0.3)
@@ -271,7 +281,7 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     _say("")
     _say(_table(prow))
     _drift_figure(prow, f"3D pendulum, {t_end:g} s, rtol = atol = 1e-6: constraint drift and energy",
-                  out / "pendulum3d_drift.png")
+                  out / "pendulum3d_drift.png", units=("m^2", "m^2/s", "J"))
     _positions_figure(next(row for row in prow if row.remedy == "projection"),
                       out / "pendulum3d_positions.png")
 

@@ -60,3 +60,10 @@ def test_misspelt_keyword_in_an_ensemble_is_named_once_before_any_sample_runs():
     r = dk.reduce_index(dk.examples.pendulum_planar())
     with pytest.raises(dk.InputError, match=r"'stabilisation' is not an option"):
         dk.ensemble(r, [0.0, 1.0], [{"L": 1.0}], executor="serial", stabilisation="projection")
+
+
+def test_a_file_that_is_not_a_trajectory_is_named(tmp_path):
+    bad = tmp_path / "x.npz"
+    bad.write_text("junk")
+    with pytest.raises(dk.ModelError, match=r"x\.npz is not a daekit trajectory"):
+        dk.load_trajectory(bad)

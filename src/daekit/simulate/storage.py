@@ -140,12 +140,18 @@ def read_trajectory(path: str | os.PathLike) -> dict[str, Any]:
     if not os.path.exists(path):
         raise ModelError(f"load_trajectory: no such file: {path}")
     if path.endswith(".npz"):
-        with np.load(path, allow_pickle=False) as f:
-            meta = json.loads(str(f["meta"]))
-            _check(meta, path)
-            t = f["t"]
-            V = f["values"]
-            inv = f["invariants"]
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                meta = json.loads(str(f["meta"]))
+                _check(meta, path)
+                t = f["t"]
+                V = f["values"]
+                inv = f["invariants"]
+        except (ValueError, KeyError, OSError, json.JSONDecodeError) as exc:
+            if isinstance(exc, ModelError):
+                raise
+            raise ModelError(f"load_trajectory: {path} is not a daekit trajectory file "
+                             f"(.npz with t, values, invariants and meta): {exc}") from None
         values = {k: V[:, j] for j, k in enumerate(meta["value_names"])}
     elif path.endswith(".parquet"):
         try:

@@ -67,3 +67,13 @@ def test_a_file_that_is_not_a_trajectory_is_named(tmp_path):
     bad.write_text("junk")
     with pytest.raises(dk.ModelError, match=r"x\.npz is not a daekit trajectory"):
         dk.load_trajectory(bad)
+
+
+def test_a_conflict_names_only_the_condition_the_fixed_values_break():
+    # issue 15's snippet: p = (0.6, -0.8) lies on the rod; v = (1, 0) breaks d/dt rod only
+    r = dk.reduce_index(dk.examples.pendulum_planar())
+    with pytest.raises(dk.InitializationError) as err:
+        dk.initialize(r, fixed={"x": 0.6, "y": -0.8, "der(x)": 1.0, "der(y)": 0.0})
+    text = str(err.value)
+    assert "['d/dt rod']" in text and "d/dt rod = 1.2" in text  # 2 (x x' + y y') = 1.2
+    assert "'rod'" not in text and "alg" not in text

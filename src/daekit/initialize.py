@@ -679,7 +679,18 @@ def initialize(
             wv, hv, J, converged, it = second
     res = float(np.max(np.abs(hv), initial=0.0))
     if not converged and res > 1e-8 * scale:
-        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it)
+        # which conditions the fixed values break: evaluated with every fixed state or
+        # algebraic value held exactly (z re-solved), the rest at the least-squares point
+        held = wv.copy()
+        for _, ri, v in fixed_items:
+            k = int(sc.w_pos[ri])
+            if k >= 0:
+                held[k] = v
+        try:
+            hv_held = np.asarray(hval(settle(held))[0], dtype=float)
+        except Exception:  # noqa: BLE001 - only a better message is at stake
+            hv_held = None
+        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_held)
 
     found = None
     if use_sparse:
@@ -970,7 +981,23 @@ def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
     return sol[:n], sol[n:]
 
 
-def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it) -> None:
+def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_held=None
+                    ) -> None:
+    n_cons = n_alg + n_inv
+    if (hv_held is not None and fixed_items and hv_held.size >= n_cons
+            and np.all(np.isfinite(hv_held[:n_cons]))):
+        cons = np.abs(hv_held[:n_cons])
+        top = float(cons.max(initial=0.0))
+        broken = [i for i in np.nonzero(cons > 1e-3 * top)[0]] if top > 1e-8 * (1 + res) else []
+        if broken:
+            fx = [(nm, v) for nm, _, v in fixed_items]
+            shown = ", ".join(f"{row_names[i]} = {hv_held[i]:.3g}" for i in broken[:6])
+            raise InitializationError(
+                f"initialize: the fixed values {_fmt(fx)} contradict the consistency "
+                f"conditions {[row_names[i] for i in broken]} (their residuals with the fixed "
+                f"values held: {shown}; the others hold). Fix fewer values - fix only dynamic "
+                "degrees of freedom - or make them consistent, and give the rest as guesses."
+            )
     # at a Gauss-Newton stationary point J^T h ~ 0: h lies in the left null space; the rows
     # carrying it are the ones in conflict
     mag = np.abs(hv)

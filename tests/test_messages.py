@@ -77,3 +77,10 @@ def test_a_conflict_names_only_the_condition_the_fixed_values_break():
     text = str(err.value)
     assert "['d/dt rod']" in text and "d/dt rod = 1.2" in text  # 2 (x x' + y y') = 1.2
     assert "'rod'" not in text and "alg" not in text
+
+
+def test_an_element_out_of_range_says_how_many_there_are():
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    with pytest.raises(dk.InitializationError, match=r"'p\[5\]' is out of range: 'p' has 3 "
+                                                     r"elements \(p\[0\] \.\. p\[2\]\)"):
+        dk.initialize(r, fixed={"p[5]": 1.0})

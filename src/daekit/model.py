@@ -99,6 +99,16 @@ def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
             return [cand]
         if idx == 0 and prefix in keys:
             return [prefix]
+        size = 0
+        while f"{prefix}[{size}]" in keys:
+            size += 1
+        if size or prefix in keys:
+            size = max(size, 1)
+            valid = f"{prefix}[0]" if size == 1 else f"{prefix}[0] .. {prefix}[{size - 1}]"
+            raise NameNotFoundError(
+                f"{what}: {name!r} is out of range: {prefix!r} has "
+                f"{'1 element' if size == 1 else f'{size} elements'} ({valid})"
+            )
     else:
         if prefix in keys:
             return [prefix]

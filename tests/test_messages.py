@@ -84,3 +84,17 @@ def test_an_element_out_of_range_says_how_many_there_are():
     with pytest.raises(dk.InitializationError, match=r"'p\[5\]' is out of range: 'p' has 3 "
                                                      r"elements \(p\[0\] \.\. p\[2\]\)"):
         dk.initialize(r, fixed={"p[5]": 1.0})
+
+
+def test_cli_json_to_stdout_and_numbers_checked_first(tmp_path, capsys):
+    import json
+
+    from daekit.cli import main
+
+    assert main(["simulate", "l1", "--t-end", "0.5", "--json", "-"]) == 0
+    out = capsys.readouterr()
+    data = json.loads(out.out)  # stdout holds the JSON only; the tables went to stderr
+    assert data["t"][-1] == pytest.approx(0.5) and "simulated" in out.err
+    with pytest.raises(SystemExit, match="--t-end must be a positive number"):
+        main(["simulate", "l1", "--t-end", "nan"])
+    assert capsys.readouterr().out == ""

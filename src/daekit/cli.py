@@ -198,8 +198,22 @@ def _cmd_reduce(args) -> int:
 
 
 def _cmd_simulate(args) -> int:
+    import math
+
     from .initialize import initialize
     from .simulate import simulate
+
+    # the checks of the numbers first: nothing runs (nor prints) on a bad --t-end or --rtol
+    for flag, value in (("--t-end", args.t_end), ("--rtol", args.rtol), ("--atol", args.atol)):
+        if not (math.isfinite(value) and value > 0):
+            raise SystemExit(f"daekit simulate: {flag} must be a positive number, got {value}")
+    if args.points < 2:
+        raise SystemExit(f"daekit simulate: --points must be at least 2, got {args.points}")
+    # "--json -" writes the JSON to stdout; the human-readable lines then go to stderr
+    out = sys.stderr if args.json == "-" else sys.stdout
+
+    def say(text: str = "") -> None:
+        print(text, file=out)
 
     obj = load_target(args.target)
     r = _as_reduced(obj, args.method, args.stabilization)
@@ -207,30 +221,32 @@ def _cmd_simulate(args) -> int:
     guess = json.loads(args.guess) if args.guess else None
     inputs = _parse_inputs(args.input, r)
     init = initialize(r, fixed=fixed, guess=guess, inputs=inputs)
-    print(_describe_initial(r, init, fixed, guess))
+    say(_describe_initial(r, init, fixed, guess))
     t = np.linspace(0.0, args.t_end, args.points)
     traj = simulate(r, t, init, inputs=inputs, stabilization=args.stabilization, rtol=args.rtol,
                     atol=args.atol, method=args.method, progress=not args.quiet)
     final = traj.at(float(t[-1]))
     maxinv = traj.max_invariant()
-    print(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
+    say(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
           f"{traj.stats.get('steps', '?')} steps, {traj.stats.get('wall_time', float('nan')):.3f} s")
     if traj.events:
         shown = ", ".join(f"{n} at t = {te:.10g}" for te, n in traj.events[:10])
         more = f", ... ({len(traj.events)} in all)" if len(traj.events) > 10 else ""
-        print(f"events: {shown}{more}")
+        say(f"events: {shown}{more}")
     pnames = set(r.p_names)
     for k, v in final.items():
         if k not in pnames:
-            print(f"  {k:>16} = {v: .10g}")
+            say(f"  {k:>16} = {v: .10g}")
     if r.p_names:
         pv = _trajectory_json_parameters(r, traj)
-        print("parameters: " + ", ".join(f"{k} = {v:g}" for k, v in pv.items()))
+        say("parameters: " + ", ".join(f"{k} = {v:g}" for k, v in pv.items()))
     if maxinv:
-        print("max |invariant|: " + ", ".join(f"{k}: {v:.2e}" for k, v in maxinv.items()))
-    if args.json:
+        say("max |invariant|: " + ", ".join(f"{k}: {v:.2e}" for k, v in maxinv.items()))
+    if args.json == "-":
+        print(json.dumps(_trajectory_json(r, traj)))
+    elif args.json:
         Path(args.json).write_text(json.dumps(_trajectory_json(r, traj)))
-        print(f"wrote {args.json}")
+        say(f"wrote {args.json}")
     if args.plot:
         import matplotlib
 
@@ -438,7 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "inputs not given are zero)")
     s.add_argument("--rtol", type=float, default=1e-8)
     s.add_argument("--atol", type=float, default=1e-8)
-    s.add_argument("--json", metavar="OUT", help="write the trajectory as JSON")
+    s.add_argument("--json", metavar="OUT",
+                   help="write the trajectory as JSON to OUT ('-': to stdout, the rest to stderr)")
     s.add_argument("--plot", metavar="OUT.png", help="save a plot of the trajectory")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_simulate)

@@ -71,9 +71,11 @@ def as_reduced(obj, where: str, stabilization: str | None = None, method: str = 
             r = obj.index1() if red == "differentiate" else reduce_index(obj.model(), method=red)
         else:
             r = reduce_index(obj, method=red)
+        # the system is shared by every entry point that receives this model: its note says
+        # what was done, not for whom (each call's own note goes to ``notes``)
         r.info.setdefault("notes", []).append(
-            f"reduced automatically (for {where}); the {'LagrangianSystem' if lagrangian else 'Model'} "
-            "was given where a ReducedDAE is expected")
+            f"reduced automatically; the {'LagrangianSystem' if lagrangian else 'Model'} was "
+            "given where a ReducedDAE is expected")
         try:
             _AUTO[obj] = (fp, r)
         except TypeError:  # not weak-referenceable: no reuse

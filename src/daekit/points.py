@@ -156,13 +156,7 @@ class TestPoint:
     def random_copy(self) -> TestPoint:
         """The point as first drawn (before any :func:`make_consistent`): same seed, same
         draws, same user values."""
-        other = TestPoint(self.model, self.point, self.seed, self.attempt)
-        other.t = self.t
-        held = _fixed_kinds(self.model)
-        for h, v in self.values.items():
-            if h in held:
-                other.values[h] = v
-        return other
+        return self.sibling(0)
 
     def assign(self, syms, vals) -> None:
         for s, v in zip(syms, vals, strict=True):

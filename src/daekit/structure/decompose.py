@@ -70,38 +70,31 @@ def dulmage_mendelsohn(n_rows: int, n_cols: int, rows, cols) -> DMDecomposition:
     row_match[col_match[ok]] = np.nonzero(ok)[0]
     at = a.tocsc()
 
-    # over-determined: from unmatched rows, row -> its columns -> the columns' matched rows
+    # over-determined: from unmatched rows, row -> its columns -> the columns' matched rows;
+    # under-determined: the same search on the transpose, from unmatched columns
+    over_rows, over_cols = _alternating_reach(a, row_match, col_match, n_rows, n_cols)
+    under_cols, under_rows = _alternating_reach(at, col_match, row_match, n_cols, n_rows)
+    return DMDecomposition(over_rows, over_cols, under_rows, under_cols, row_match, col_match)
+
+
+def _alternating_reach(a, match_of_row, match_of_col, n_rows: int, n_cols: int):
+    """Rows and columns reachable from the unmatched rows of the CSR pattern ``a`` by
+    alternating paths (row -> any of its columns -> that column's matched row): the
+    over-determined part of Dulmage--Mendelsohn (on the transpose: the under-determined)."""
     seen_r = np.zeros(n_rows, bool)
     seen_c = np.zeros(n_cols, bool)
-    queue = deque(np.nonzero(row_match < 0)[0].tolist())
+    queue = deque(np.nonzero(match_of_row < 0)[0].tolist())
     seen_r[list(queue)] = True
     while queue:
         i = queue.popleft()
         for j in a.indices[a.indptr[i] : a.indptr[i + 1]]:
             if not seen_c[j]:
                 seen_c[j] = True
-                r = col_match[j]
+                r = match_of_col[j]
                 if r >= 0 and not seen_r[r]:
                     seen_r[r] = True
                     queue.append(r)
-    over_rows, over_cols = np.nonzero(seen_r)[0].tolist(), np.nonzero(seen_c)[0].tolist()
-
-    # under-determined: from unmatched columns, column -> its rows -> the rows' matched columns
-    seen_r2 = np.zeros(n_rows, bool)
-    seen_c2 = np.zeros(n_cols, bool)
-    queue = deque(np.nonzero(col_match < 0)[0].tolist())
-    seen_c2[list(queue)] = True
-    while queue:
-        j = queue.popleft()
-        for i in at.indices[at.indptr[j] : at.indptr[j + 1]]:
-            if not seen_r2[i]:
-                seen_r2[i] = True
-                c = row_match[i]
-                if c >= 0 and not seen_c2[c]:
-                    seen_c2[c] = True
-                    queue.append(c)
-    under_rows, under_cols = np.nonzero(seen_r2)[0].tolist(), np.nonzero(seen_c2)[0].tolist()
-    return DMDecomposition(over_rows, over_cols, under_rows, under_cols, row_match, col_match)
+    return np.nonzero(seen_r)[0].tolist(), np.nonzero(seen_c)[0].tolist()
 
 
 def block_triangular(n: int, rows, cols, row_match) -> list[tuple[list[int], list[int]]]:

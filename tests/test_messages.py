@@ -98,3 +98,12 @@ def test_cli_json_to_stdout_and_numbers_checked_first(tmp_path, capsys):
     with pytest.raises(SystemExit, match="--t-end must be a positive number"):
         main(["simulate", "l1", "--t-end", "nan"])
     assert capsys.readouterr().out == ""
+
+
+def test_rattle_says_that_tolerances_do_not_apply():
+    import numpy as np
+
+    sysm = dk.examples.lagrangian_pendulum3d()
+    init = {"p": [1.0, 0.0, 0.0], "der(p)": [0.0, 0.0, 0.0]}
+    with pytest.warns(UserWarning, match="rtol and atol do not apply; RATTLE takes fixed steps"):
+        dk.simulate(sysm, np.linspace(0, 0.1, 3), init, method="rattle", rtol=1e-10)

@@ -223,8 +223,9 @@ def _cmd_simulate(args) -> int:
     init = initialize(r, fixed=fixed, guess=guess, inputs=inputs)
     say(_describe_initial(r, init, fixed, guess))
     t = np.linspace(0.0, args.t_end, args.points)
-    traj = simulate(r, t, init, inputs=inputs, stabilization=args.stabilization, rtol=args.rtol,
-                    atol=args.atol, method=args.method, progress=not args.quiet)
+    tols = {} if args.method == "rattle" else {"rtol": args.rtol, "atol": args.atol}
+    traj = simulate(r, t, init, inputs=inputs, stabilization=args.stabilization,
+                    method=args.method, progress=not args.quiet, **tols)
     final = traj.at(float(t[-1]))
     maxinv = traj.max_invariant()
     say(f"simulated {r.model.name if r.model is not None else 'system'} to t = {t[-1]:g}: "
@@ -457,7 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", metavar="OUT",
                    help="write the trajectory as JSON to OUT ('-': to stdout, the rest to stderr)")
     s.add_argument("--plot", metavar="OUT.png", help="save a plot of the trajectory")
-    s.add_argument("--quiet", action="store_true")
+    s.add_argument("--quiet", action="store_true",
+                   help="no progress bar on stderr (the results are still printed)")
     s.set_defaults(func=_cmd_simulate)
 
     w = sub.add_parser("sweep", help="a parameter sweep: one simulation per sample, a summary "

@@ -166,8 +166,8 @@ def simulate(
     inputs: Mapping | None = None,
     params: Mapping | None = None,
     stabilization: str | None = None,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
+    rtol: float | None = None,
+    atol: float | None = None,
     method: str = "idas",
     progress: bool = False,
     poles=(-1.0, -1.0),
@@ -210,7 +210,8 @@ def simulate(
         method="dummy_derivatives")`` and re-selects the states when the selection's pivot
         degrades (``stats["selection_switches"]``).
     rtol, atol : float
-        IDAS tolerances.
+        IDAS tolerances (default 1e-8 each). RATTLE takes fixed steps ``dt`` and no
+        tolerances: given with ``method="rattle"`` they warn and are not used.
     method : "idas" or "rattle"
         ``"rattle"`` dispatches to :func:`daekit.simulate.rattle.simulate_rattle`.
     progress : bool
@@ -266,6 +267,12 @@ def simulate(
     """
     wall0 = time.perf_counter()
     notes: list[str] = []
+    if method == "rattle" and (rtol is not None or atol is not None):
+        warnings.warn(
+            "simulate(method='rattle'): rtol and atol do not apply; RATTLE takes fixed steps "
+            "dt (give dt=...; its error is O(dt^2))", UserWarning, stacklevel=2)
+    rtol = 1e-8 if rtol is None else rtol
+    atol = 1e-8 if atol is None else atol
     if not isinstance(r, ReducedDAE) and not (method == "rattle" and hasattr(r, "index1")):
         # a Model (or LagrangianSystem): reduced once with the default method, noted in stats
         r = as_reduced(r, "simulate", stabilization=stabilization, method=method, notes=notes)
@@ -286,7 +293,7 @@ def simulate(
                 traj.stats["reduced"] = notes[0]
             return traj
         traj = simulate_rattle(
-            r, t, init, inputs=inputs, params=params, rtol=rtol, atol=atol, progress=progress,
+            r, t, init, inputs=inputs, params=params, progress=progress,
             **options,
         )
         if notes:

@@ -274,7 +274,9 @@ def _describe_initial(r, init, fixed, guess) -> str:
                 pass
     free = set(init.free)
     how = "from your --fixed/--guess" if (fixed or guess) else \
-        "no --fixed/--guess given: started from zeros and projected onto the constraints"
+        ("no --fixed/--guess given: dk.initialize's default start (zeros, and a generic "
+         "point where zeros are singular) made consistent by Gauss-Newton; give --fixed to "
+         "choose")
     lines = [f"initial values at t = {init.t0:g} ({how}; consistent to {init.residual:.1e}):"]
     for nm, v in zip(r.x_names, init.x0, strict=False):
         mark = "fixed" if nm in fixed_names else ("free" if nm in free else "determined")

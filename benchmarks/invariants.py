@@ -25,24 +25,15 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import time
 
 import casadi as ca
 import numpy as np
+from common import best_of  # noqa: E402 - benchmarks/ is the script directory
 
 import daekit as dk
 from daekit.examples import invariants as inv
 
 REPEAT = 3
-
-
-def best_of(fn, repeat=REPEAT):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def errors(t, q, w):

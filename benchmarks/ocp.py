@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 import daekit as dk
-from daekit.examples.ocp_examples import pendulum_with_tangential_force
+from daekit.examples.ocp_examples import betts_pendulum_ocp, pendulum_with_tangential_force
 from daekit.ocp import OCP
 from daekit.ocp.collocation import radau_coefficients
 from daekit.ocp.guess import make_guess
@@ -51,20 +51,7 @@ def swing():
     return ocp
 
 
-def betts():
-    m = dk.Model("betts")
-    x, y = m.state("x"), m.state("y")
-    lam, u = m.algebraic("lam"), m.control("u")
-    m.equation(m.der(x, 2) - (-2 * lam * x + u * y), name="newton_x")
-    m.equation(m.der(y, 2) - (-9.81 - 2 * lam * y - u * x), name="newton_y")
-    m.equation(x**2 + y**2 - 1, name="rod")
-    ocp = OCP(m, t_final=3.0, intervals=100, degree=3, controls="polynomial")
-    ocp.minimize(integral=u**2)
-    ocp.initial({"x": 1, "y": 0, "der(x)": 0, "der(y)": 0}).final({"x": 0, "der(x)": 0})
-    ocp.bound("lam", -1, 15)
-    for n in ("x", "y", "der(x)", "der(y)"):
-        ocp.bound(n, -5, 5)
-    return ocp
+betts = betts_pendulum_ocp
 
 
 def cartpole():

@@ -24,10 +24,10 @@ Run: ``python benchmarks/simulation.py [--quick] [--chain]`` (``--chain``: part 
 from __future__ import annotations
 
 import sys
-import time
 
 import casadi as ca
 import numpy as np
+from common import best_of  # noqa: E402 - benchmarks/ is the script directory
 
 import daekit as dk
 
@@ -36,15 +36,6 @@ T_END = 10.0
 G = 9.81
 P0 = [float(np.sin(0.6)), 0.0, float(-np.cos(0.6))]
 V0 = [0.0, 1.5, 0.0]
-
-
-def best_of(fn, repeat=REPEAT):
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def hand_integrator(t, tol):

@@ -9,6 +9,7 @@ import pytest
 import daekit as dk
 from daekit.errors import OCPError
 from daekit.examples.ocp_examples import (
+    betts_pendulum_ocp,
     pendulum_with_tangential_force,
     swing_optimum_minimal_coordinates,
 )
@@ -772,23 +773,7 @@ def test_condition_contradicting_the_invariants_alone_is_not_vetoed_but_named():
 
 
 # ---------------------------------------------------------------- issue 9: hard classics
-def betts_pendulum(initial_all=True):
-    """Betts (2010) problem 10.103 from the index-3 Cartesian model as written."""
-    m = dk.Model("betts")
-    x, y = m.state("x"), m.state("y")
-    lam, u = m.algebraic("lam"), m.control("u")
-    m.equation(m.der(x, 2) - (-2 * lam * x + u * y), name="newton_x")
-    m.equation(m.der(y, 2) - (-9.81 - 2 * lam * y - u * x), name="newton_y")
-    m.equation(x**2 + y**2 - 1, name="rod")
-    ocp = OCP(m, t_final=3.0, intervals=100, degree=3, controls="polynomial")
-    ocp.minimize(integral=u**2)
-    ocp.initial({"x": 1, "y": 0, "der(x)": 0, "der(y)": 0} if initial_all
-                else {"x": 1, "der(y)": 0})
-    ocp.final({"x": 0, "der(x)": 0})
-    ocp.bound("lam", -1, 15)
-    for n in ("x", "y", "der(x)", "der(y)"):
-        ocp.bound(n, -5, 5)
-    return ocp
+betts_pendulum = betts_pendulum_ocp
 
 
 @pytest.mark.parametrize("initial_all", [True, False])

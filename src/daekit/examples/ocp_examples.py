@@ -42,6 +42,7 @@ from ..model import Model
 __all__ = [
     "pendulum_with_tangential_force",
     "swing_optimum_minimal_coordinates",
+    "betts_pendulum_ocp",
     "crane",
     "crane_ocp",
     "crane_figure",
@@ -104,6 +105,34 @@ def swing_optimum_minimal_coordinates(th1: float, T: float, L: float = 1.0,
     if s.status != 0:  # pragma: no cover - a failure here is a broken reference, not daekit's
         raise RuntimeError(f"solve_bvp failed: {s.message}")
     return float(s.y[4, -1])
+
+
+def betts_pendulum_ocp(initial_all: bool = True):
+    """Betts (2010) problem 10.103 from the index-3 Cartesian model as written:
+    ``x'' = -2 lam x + u y``, ``y'' = -g - 2 lam y - u x``, ``x^2 + y^2 = 1``, g = 9.81;
+    minimize ``int u^2`` on [0, 3] from ``x = 1, y = 0`` at rest (all four values, redundant
+    on the rod, or only ``x = 1, der(y) = 0`` with ``initial_all=False``) to ``x = 0,
+    der(x) = 0``; ``-1 <= lam <= 15``, +-5 on positions and velocities; Radau degree 3, 100
+    intervals, polynomial controls. Published optimum J = 12.8738850 (an independent
+    angle-form solution: 12.8738889); it ends hanging at y = -1.
+    """
+    from ..ocp import OCP
+
+    m = Model("betts")
+    x, y = m.state("x"), m.state("y")
+    lam, u = m.algebraic("lam"), m.control("u")
+    m.equation(m.der(x, 2) - (-2 * lam * x + u * y), name="newton_x")
+    m.equation(m.der(y, 2) - (-9.81 - 2 * lam * y - u * x), name="newton_y")
+    m.equation(x**2 + y**2 - 1, name="rod")
+    ocp = OCP(m, t_final=3.0, intervals=100, degree=3, controls="polynomial")
+    ocp.minimize(integral=u**2)
+    ocp.initial({"x": 1, "y": 0, "der(x)": 0, "der(y)": 0} if initial_all
+                else {"x": 1, "der(y)": 0})
+    ocp.final({"x": 0, "der(x)": 0})
+    ocp.bound("lam", -1, 15)
+    for n in ("x", "y", "der(x)", "der(y)"):
+        ocp.bound(n, -5, 5)
+    return ocp
 
 
 def crane(M: float = 1.0, m: float = 0.5, L: float = 1.0, g: float = 9.81) -> Model:

@@ -45,7 +45,7 @@ True
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -54,8 +54,9 @@ import numpy as np
 from ..errors import InitializationError, ModelError, SimulationError
 from ..wording import count
 from .progress import Progress
+from .trajectory import Trajectory
 
-__all__ = ["ConstrainedMechanics", "RattleResult", "simulate_rattle", "as_constrained_mechanics",
+__all__ = ["ConstrainedMechanics", "simulate_rattle", "as_constrained_mechanics",
            "rattle_stepper"]
 
 #: default largest step when neither ``dt`` nor a fine output grid is given
@@ -240,35 +241,8 @@ class ConstrainedMechanics:
         return cls(q=q, M=Mq, V=Vq, c=cq, force=force, **kw)
 
 
-@dataclass
-class RattleResult:
-    """What :func:`simulate_rattle` returns when ``daekit.simulate.Trajectory`` is absent.
-
-    ``t``, ``values`` (name -> array over ``t``), ``invariants`` (rows over ``t``),
-    ``invariant_names``, ``stats``; ``result["x"]`` reads a value by name.
-    """
-
-    t: np.ndarray
-    values: dict[str, np.ndarray]
-    invariants: np.ndarray
-    invariant_names: list[str]
-    stats: dict = field(default_factory=dict)
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if name in self.values:
-            return self.values[name]
-        cols = [k for k in self.values if k.startswith(name + "[")]
-        if not cols:
-            raise KeyError(f"no value named {name!r}; known names: {sorted(self.values)}")
-        return np.column_stack([self.values[k] for k in sorted(cols, key=_index_of)])
-
-
 # ----------------------------------------------------------------------------------------------
 # helpers
-
-
-def _index_of(name: str) -> int:
-    return int(name[name.rindex("[") + 1 : -1])
 
 
 def _indexed(base: str, size: int) -> list[str]:
@@ -771,17 +745,6 @@ def rattle_stepper(system: Any, t_range, params: dict | None = None, inputs: Any
     return sysm, step, helpers
 
 
-def _fallback_trajectory(**kw: Any) -> Any:
-    try:
-        from .trajectory import Trajectory  # type: ignore[import-not-found]
-    except ImportError:
-        return RattleResult(**kw)
-    try:
-        return Trajectory(**kw)
-    except TypeError:
-        return RattleResult(**kw)
-
-
 def simulate_rattle(
     system: Any,
     t: Any,
@@ -986,7 +949,7 @@ def _assemble(sysm, helpers, tt, Xs, nsteps, wall0, dt, newton_iter):
         "energy": E,
         "energy_error_max": float(np.max(np.abs(E - E[0]))) if N else 0.0,
     }
-    return _fallback_trajectory(
+    return Trajectory(
         t=tt.copy(), values=values, invariants=inv, invariant_names=inv_names, stats=stats
     )
 

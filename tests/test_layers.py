@@ -17,6 +17,23 @@ def test_import_daekit_loads_neither_matplotlib_nor_the_examples():
     assert out.stdout.split() == ["False", "False", "True"]
 
 
+def test_import_daekit_defers_scipy_linear_algebra():
+    """SciPy loads ``scipy.linalg``, ``scipy.sparse.linalg`` and ``scipy.sparse.csgraph``
+    (about 70 ms together) on first attribute access; daekit reaches them only as
+    ``scipy.linalg.*`` / ``sp.linalg.*`` / ``sp.csgraph.*`` inside functions, so that
+    ``import daekit`` costs little more than CasADi, NumPy and ``scipy.sparse``."""
+    code = (
+        "import sys, daekit\n"
+        "print(sorted(m for m in ('scipy.linalg', 'scipy.sparse.linalg', 'scipy.sparse.csgraph')"
+        " if m in sys.modules))\n"
+        "m = daekit.Model('m'); x = m.state('x'); m.equation(m.der(x) + x)\n"
+        "daekit.analyze(m)\n"
+        "print('scipy.sparse.csgraph' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["[]", "True"]
+
+
 def _module_graph():
     """daekit's import graph from the source (``ast``; imports inside functions included):
     ``{module: {imported daekit module}}`` and the ``(module, target, name)`` of every

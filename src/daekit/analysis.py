@@ -30,8 +30,6 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import connected_components
 
 from .errors import ModelError
 from .model import Model
@@ -229,7 +227,7 @@ def _schur_rank(jac: sp.csr_matrix, singular) -> tuple[int, list[int]] | None:
     j_ss = jac[s_rows][:, s_cols].toarray()
     if len(n_rows):
         try:
-            lu = spla.splu(sp.csc_matrix(jac[n_rows][:, n_cols]), permc_spec="COLAMD")
+            lu = sp.linalg.splu(sp.csc_matrix(jac[n_rows][:, n_cols]), permc_spec="COLAMD")
         except RuntimeError:  # J_NN numerically singular after all: keep the per-block sum
             return None
         j_sn = jac[s_rows][:, n_cols]
@@ -373,7 +371,7 @@ def _components(inc) -> tuple[np.ndarray, np.ndarray]:
     n_e, n_u = inc.n_equations, inc.n_unknowns
     g = sp.csr_matrix((np.ones(len(inc.rows), np.int8), (inc.rows, n_e + inc.cols)),
                       shape=(n_e + n_u, n_e + n_u))
-    _, labels = connected_components(g, directed=False)
+    _, labels = sp.csgraph.connected_components(g, directed=False)
     return labels[:n_e], labels[n_e:]
 
 

@@ -61,10 +61,8 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
+import scipy
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from .errors import InitializationError
 from .threads import limit_blas_threads
@@ -887,7 +885,7 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 break
             try:
                 if sparse:
-                    dz = spla.splu(A.tocsc()).solve(-g)
+                    dz = sp.linalg.splu(A.tocsc()).solve(-g)
                 else:
                     with warnings.catch_warnings():
                         warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
@@ -947,7 +945,7 @@ def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
         b1 = np.zeros(n)
         sW, eps = 1.0, 1.0
     if m == 0:
-        d = spla.splu((W + eps * sp.identity(n)).tocsc()).solve(b1) if n else np.zeros(0)
+        d = sp.linalg.splu((W + eps * sp.identity(n)).tocsc()).solve(b1) if n else np.zeros(0)
         return d, np.zeros(0)
     Wx = (W + eps * sp.diags(dx)).tocsc()
     Jc = J.tocsc()
@@ -955,7 +953,7 @@ def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
     b = np.concatenate([b1, -hv])
     nb = max(np.linalg.norm(b), 1e-300)
     try:
-        lu = spla.splu(K)  # COLAMD + partial pivoting: little fill on KKT matrices
+        lu = sp.linalg.splu(K)  # COLAMD + partial pivoting: little fill on KKT matrices
         sol = lu.solve(b)
         if np.all(np.isfinite(sol)):
             sol = sol + lu.solve(b - K @ sol)
@@ -969,9 +967,9 @@ def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
         [[W + eps * sp.identity(n), Jc.T], [Jc, -mu * sp.identity(m)]], format="csc"
     )
     try:
-        lu = spla.splu(K_reg)
+        lu = sp.linalg.splu(K_reg)
     except RuntimeError:  # pragma: no cover - the regularized matrix is nonsingular
-        return spla.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0], np.zeros(m)
+        return sp.linalg.lsmr(J, -hv, atol=1e-14, btol=1e-14)[0], np.zeros(m)
     sol = lu.solve(b)
     for _ in range(refine):
         res = b - K @ sol
@@ -1006,7 +1004,7 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_hel
     cond_rows = [row_names[i] for i in involved if n_alg <= i < n_alg + n_inv]
     alg_rows = [row_names[i] for i in involved if i < n_alg and mag[i] > 1e-3 * mag.max()]
     lhs = (J.T @ hv) if J.size else np.zeros(0)
-    jnorm = spla.norm(J) if sp.issparse(J) else np.linalg.norm(J)
+    jnorm = sp.linalg.norm(J) if sp.issparse(J) else np.linalg.norm(J)
     stationary = np.linalg.norm(lhs) <= 1e-6 * max(np.linalg.norm(hv), 1e-300) * max(
         1.0, jnorm
     )
@@ -1172,11 +1170,11 @@ def _well_conditioned(lu, A: sp.csc_matrix, limit: float = 1e10) -> bool:
     nA = A.shape[0]
     if nA == 0:
         return True
-    inv = spla.LinearOperator(
+    inv = sp.linalg.LinearOperator(
         (nA, nA), matvec=lu.solve, rmatvec=lambda b: lu.solve(b, trans="T"), dtype=float
     )
     try:
-        cond = spla.onenormest(inv) * spla.norm(A, 1)
+        cond = sp.linalg.onenormest(inv) * sp.linalg.norm(A, 1)
     except Exception:  # pragma: no cover - estimator trouble: take the dense path
         return False
     return bool(np.isfinite(cond) and cond < limit)
@@ -1211,7 +1209,7 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
     if nz:
         Az = J[:n_alg, nx:].tocsc()
         try:
-            lu_a = spla.splu(Az)
+            lu_a = sp.linalg.splu(Az)
         except RuntimeError:
             return None
         if not _well_conditioned(lu_a, Az):
@@ -1251,13 +1249,13 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
         cost = np.log(rowmax[rows_of]) - np.log(A.data) + 1.0 + penalty[A.indices]
         B = sp.csr_matrix((cost, A.indices, A.indptr), shape=A.shape)
         try:
-            _, D = min_weight_full_bipartite_matching(B)
+            _, D = sp.csgraph.min_weight_full_bipartite_matching(B)
         except ValueError:  # structurally rank deficient
             return None
         D = np.asarray(D)
         CD = C[:, D].tocsc()
         try:
-            lu_c = spla.splu(CD)
+            lu_c = sp.linalg.splu(CD)
         except RuntimeError:
             return None
         if not _well_conditioned(lu_c, CD):

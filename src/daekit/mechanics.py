@@ -40,7 +40,6 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .errors import ModelError
 from .model import Model, element_name
@@ -603,7 +602,7 @@ class LagrangianSystem:
                     "positive coefficient (every coordinate needs inertia)"
                 )
         try:
-            lu = spla.splu(M.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+            lu = sp.linalg.splu(M.tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
                            options={"SymmetricMode": True})
             piv = lu.U.diagonal()
         except RuntimeError:
@@ -633,7 +632,7 @@ class LagrangianSystem:
                 )
         K = _to_scipy(ca.DM(self.kkt_matrix(q, pvals)))
         try:
-            lu = spla.splu(K.tocsc())
+            lu = sp.linalg.splu(K.tocsc())
         except RuntimeError:
             raise ModelError(
                 f"{label}: the index-1 matrix [M G^T; G 0] is singular {where} "

@@ -41,7 +41,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
@@ -87,7 +86,7 @@ def _curtis_reid(B) -> tuple[np.ndarray, np.ndarray]:
     cc = np.bincount(cols, minlength=n).astype(float)
     K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-    sol = spla.spsolve(K, b)
+    sol = sp.linalg.spsolve(K, b)
     return sol[:m], sol[m:]
 
 
@@ -312,7 +311,7 @@ def redundant_rows(C, F, rtol: float = 1e-8) -> list[int]:
 
 def _splu_pivots(A) -> np.ndarray | None:
     try:
-        lu = spla.splu(sp.csc_matrix(A), permc_spec="COLAMD")
+        lu = sp.linalg.splu(sp.csc_matrix(A), permc_spec="COLAMD")
     except RuntimeError:  # exactly singular
         return None
     return np.abs(lu.U.diagonal())

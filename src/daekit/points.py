@@ -35,7 +35,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .errors import ModelError
 from .numerics import SparseFunction, equilibrate, to_scipy
@@ -387,7 +386,7 @@ def _min_norm_step(J: sp.csr_matrix, h: np.ndarray) -> np.ndarray | None:
     mu = 1e-12
     K = sp.bmat([[sp.identity(n, format="csc"), J.T], [J, -mu * sp.identity(m)]], format="csc")
     try:
-        lu = spla.splu(K, permc_spec="COLAMD")
+        lu = sp.linalg.splu(K, permc_spec="COLAMD")
     except RuntimeError:
         return None
     rhs = np.r_[np.zeros(n), -h]

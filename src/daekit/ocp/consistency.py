@@ -43,7 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
+import scipy
 
 __all__ = ["BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
            "project_ends", "project_ends_many", "restricted_jacobian", "conflicting_conditions",
@@ -138,7 +138,7 @@ def null_basis(J: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     J = equilibrate(np.atleast_2d(np.asarray(J, dtype=float)))
     if J.shape[0] == 0:
         return np.eye(J.shape[1])
-    return sla.null_space(J, rcond=tol)
+    return scipy.linalg.null_space(J, rcond=tol)
 
 
 def equilibrate(J: np.ndarray) -> np.ndarray:

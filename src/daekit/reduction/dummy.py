@@ -57,9 +57,8 @@ from collections.abc import Mapping
 
 import casadi as ca
 import numpy as np
-import scipy.linalg as sla
+import scipy
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .. import numerics
 from ..errors import ReductionError
@@ -157,7 +156,7 @@ def _select(A: np.ndarray, m: int):
     if A.shape[0] == 1:  # one equation: the largest entry (what the QR would pick)
         cols = np.array([int(np.argmax(np.abs(A[0])))])
     else:
-        _, _, piv = sla.qr(A, mode="economic", pivoting=True)
+        _, _, piv = scipy.linalg.qr(A, mode="economic", pivoting=True)
         cols = np.sort(piv[:m])
     return cols, _block_condition(A, cols)
 
@@ -281,13 +280,13 @@ def _condition_estimate(J: sp.csr_matrix, R, C, S) -> float:
     A = J[R][:, C]
     AS = sp.csc_matrix(J[R][:, S])
     try:
-        lu = spla.splu(AS)
+        lu = sp.linalg.splu(AS)
     except RuntimeError:
         return float("inf")
     n = AS.shape[0]
-    inv = spla.LinearOperator((n, n), matvec=lu.solve, rmatvec=lambda y: lu.solve(y, "T"),
+    inv = sp.linalg.LinearOperator((n, n), matvec=lu.solve, rmatvec=lambda y: lu.solve(y, "T"),
                               dtype=float)
-    return float(abs(A).sum(axis=0).max() * spla.onenormest(inv))
+    return float(abs(A).sum(axis=0).max() * sp.linalg.onenormest(inv))
 
 
 def _deficient_rows(A: np.ndarray, which: bool = True):

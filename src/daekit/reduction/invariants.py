@@ -48,9 +48,8 @@ from collections.abc import Mapping
 
 import casadi as ca
 import numpy as np
-import scipy.linalg as sla
+import scipy
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..errors import ModelError, ReductionError
 from ..model import expand_name
@@ -164,7 +163,7 @@ def _manifold_point(hfun, n: int, rng, dense: bool, attempts: int = 6):
                 Js = _to_csc(ca.DM(J))
                 if not np.all(np.isfinite(Js.data)):
                     break
-                d = spla.lsmr(Js, -hv, atol=1e-15, btol=1e-15, maxiter=10 * n)[0]
+                d = sp.linalg.lsmr(Js, -hv, atol=1e-15, btol=1e-15, maxiter=10 * n)[0]
             w = w + d
             if not np.all(np.isfinite(w)):
                 break
@@ -238,7 +237,7 @@ def check_declared(r: ReducedDAE, n_found: int, seed: int = 0, points: int = 3,
             Cz, Gz = _to_csc(ca.DM(res[2])), _to_csc(ca.DM(res[3]))
             rh = np.asarray(res[4], dtype=float).ravel()
             try:
-                zd = -spla.splu(Gz).solve(rh)
+                zd = -sp.linalg.splu(Gz).solve(rh)
             except RuntimeError:
                 continue
             d = d + Cz @ zd
@@ -394,7 +393,7 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
     if k == 1:
         cols = np.array([int(np.argmax(np.abs(G[0])))])
     else:
-        _, _, piv = sla.qr(G, mode="economic", pivoting=True)
+        _, _, piv = scipy.linalg.qr(G, mode="economic", pivoting=True)
         cols = np.sort(piv[:k])
     sub = G[:, cols]
     smin = np.linalg.svd(sub, compute_uv=False)[-1] if sub.size else 0.0

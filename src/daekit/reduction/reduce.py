@@ -53,9 +53,8 @@ from collections.abc import Callable
 
 import casadi as ca
 import numpy as np
-import scipy.linalg as sla
+import scipy
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .. import numerics
 from ..errors import DaekitError, ReductionError
@@ -350,7 +349,7 @@ def _left_null(ex: Expansion, seed: int):
             return False
         k = Nf.shape[0]
         if piv is None:
-            _, _, pv = sla.qr(Nf / dr[None, :], mode="economic", pivoting=True)
+            _, _, pv = scipy.linalg.qr(Nf / dr[None, :], mode="economic", pivoting=True)
             piv = np.sort(pv[:k])
         B = Nf[:, piv]
         if np.linalg.cond(B) > 1e8:
@@ -395,7 +394,7 @@ def _extend_left_null(A: sp.csr_matrix, blocks, k: int, W: np.ndarray):
     if not np.any(rhs):
         return out
     try:
-        lu = spla.splu(sp.csc_matrix(A[R][:, C].T))
+        lu = sp.linalg.splu(sp.csc_matrix(A[R][:, C].T))
     except RuntimeError:
         return None
     sol = lu.solve(np.asarray(rhs, dtype=float))

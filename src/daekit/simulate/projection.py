@@ -29,7 +29,6 @@ import math
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..errors import SimulationError
 from .driver import Action, Firing, Monitor, Segment
@@ -127,7 +126,7 @@ class Projector:
             K = sp.csc_matrix((out[F.name_out(1)], row, colind), shape=shape)
             try:
                 with np.errstate(all="ignore"):
-                    return spla.splu(K)
+                    return sp.linalg.splu(K)
             except RuntimeError:
                 continue
         return None

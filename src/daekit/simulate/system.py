@@ -38,7 +38,6 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
@@ -569,12 +568,12 @@ def _sparse_solve(A: sp.csc_matrix, b: np.ndarray) -> np.ndarray:
     if A.shape[0] == A.shape[1]:
         try:
             with np.errstate(all="ignore"):
-                x = spla.splu(A.tocsc()).solve(b)
+                x = sp.linalg.splu(A.tocsc()).solve(b)
             if np.all(np.isfinite(x)):
                 return x
         except RuntimeError:
             pass
-    return spla.lsqr(A, b, atol=1e-15, btol=1e-15, iter_lim=10 * max(A.shape))[0]
+    return sp.linalg.lsqr(A, b, atol=1e-15, btol=1e-15, iter_lim=10 * max(A.shape))[0]
 
 
 #: Keywords of ``simulate`` that are not IDAS options (the events path's own settings).

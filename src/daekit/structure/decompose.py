@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, maximum_bipartite_matching
 
 __all__ = ["DMDecomposition", "dulmage_mendelsohn", "block_triangular"]
 
@@ -64,7 +63,7 @@ def dulmage_mendelsohn(n_rows: int, n_cols: int, rows, cols) -> DMDecomposition:
     ([0, 1], [0])
     """
     a = _pattern(n_rows, n_cols, rows, cols)
-    col_match = np.asarray(maximum_bipartite_matching(a, perm_type="row"))  # row of each col
+    col_match = np.asarray(sp.csgraph.maximum_bipartite_matching(a, perm_type="row"))  # row of each col
     row_match = np.full(n_rows, -1, dtype=np.int64)
     ok = col_match >= 0
     row_match[col_match[ok]] = np.nonzero(ok)[0]
@@ -116,7 +115,7 @@ def block_triangular(n: int, rows, cols, row_match) -> list[tuple[list[int], lis
     src, dst = rows, col_to_row[cols]
     keep = src != dst
     g = sp.csr_matrix((np.ones(int(keep.sum()), np.int8), (src[keep], dst[keep])), shape=(n, n))
-    n_comp, labels = connected_components(g, directed=True, connection="strong")
+    n_comp, labels = sp.csgraph.connected_components(g, directed=True, connection="strong")
     # condensed DAG: block a depends on block b if an edge a -> b; order dependencies first
     cs, cd = labels[src[keep]], labels[dst[keep]]
     inter = cs != cd

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 __all__ = [
     "SigmaAnalysis",
@@ -46,7 +45,7 @@ def highest_value_transversal(n: int, rows, cols, vals) -> np.ndarray:
     w = (vals.max() + 1 - vals).astype(float)
     a = sp.csr_matrix((w, (rows, cols)), shape=(n, n))
     try:
-        r, c = min_weight_full_bipartite_matching(a)
+        r, c = sp.csgraph.min_weight_full_bipartite_matching(a)
     except ValueError as exc:
         raise NoTransversal(str(exc)) from None
     t = np.empty(n, dtype=np.int64)

@@ -99,15 +99,13 @@ def has_events(r) -> bool:
 
     if getattr(getattr(r, "model", None), "events", None):
         return True
-    key = "_has_switches"
-    ident = (id(r.ode), id(r.alg), id(r.invariants))
-    hit = r.info.get(key)
-    if hit is None or hit[0] != ident:  # (a copy of info on another system is not trusted)
+    def scan(r) -> bool:
         found = switches(r, limit=SCAN_LIMIT)
-        r.info[key] = hit = (ident, bool(found))
         if found is None:
             r.info["switch_scan"] = f"not scanned (more than {SCAN_LIMIT} instructions)"
-    return hit[1]
+        return bool(found)
+
+    return r.derived("simulate.has_switches", scan)
 
 
 class _Monitors:
@@ -218,7 +216,7 @@ def with_branch_states(rf, n_branch: int):
         p=rf.p[:npo], p_names=list(rf.p_names[:npo]),
         p_values=np.asarray(rf.p_values, float)[:npo],
         x_names=list(rf.x_names) + list(rf.p_names[npo:]),
-        info={k: v for k, v in rf.info.items() if not k.startswith("_")},
+        info=dict(rf.info),
     )
 
 
@@ -564,7 +562,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     else:
         r_work, seg_stab = r, None
     dummy = stabilization == "dummy_derivatives"
-    index2 = r_work.info.get("index", 1) >= 2
+    index2 = r_work.index >= 2
     rf, found = (r_work, []) if dummy else freeze_switches(r_work)
     mon = _Monitors(r_work, rf, found, r_work.n_p)
     n_mon = len(mon.names)
@@ -902,7 +900,7 @@ def _restore(r, t, x, z, u, p, targets):
     """:func:`restore` on ``r``; an index-2 (GGL) system through the index-1 system it came from
     (its algebraic unknowns are not determined by ``alg`` at fixed states), the GGL multipliers
     then zero."""
-    r1 = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
+    r1 = r.origin if r.index >= 2 else None
     if r1 is None or list(r1.x_names) != list(r.x_names):
         return restore(r, t, x, z, u, p, targets)
     zmap = dict(zip(r.z_names, z, strict=True))

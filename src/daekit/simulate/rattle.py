@@ -324,7 +324,7 @@ def as_constrained_mechanics(system: Any, params: dict | None = None) -> Constra
     Accepted: a :class:`ConstrainedMechanics`; a :class:`daekit.mechanics.LagrangianSystem`
     (its kinetic energy must be ``q'^T M(q) q' / 2`` plus velocity-free terms, its forces free
     of velocities once the parameter values are in); a ``ReducedDAE`` made by it
-    (``r.info["lagrangian"]``, as from ``LagrangianSystem.index1()``); a dict or any object with
+    (``r.lagrangian``, as from ``LagrangianSystem.index1()``); a dict or any object with
     ``q``, ``M``, ``V`` and ``c`` (SX expressions; optional ``force``, ``t``, ``u``, ``p``,
     ``p_values`` and name lists). ``params`` overrides parameter values by name.
     """
@@ -347,15 +347,13 @@ def _as_mechanics(system: Any, params: dict | None) -> ConstrainedMechanics:
             if val is not None and not callable(val):
                 kw[a] = val
         return ConstrainedMechanics(q=system.q, M=system.M, V=system.V, c=system.c, **kw)
-    info = getattr(system, "info", None)
-    if isinstance(info, dict):
-        for key in ("lagrangian", "mechanics", "rattle"):
-            if key in info:
-                return _as_mechanics(info[key], params)
+    lagrangian = getattr(system, "lagrangian", None)
+    if lagrangian is not None:
+        return _as_mechanics(lagrangian, params)
     raise ModelError(
         f"method='rattle' needs a mechanical system (coordinates q, mass matrix M, potential V, "
         f"holonomic constraints c), got {type(system).__name__}"
-        + (" without info['lagrangian']" if info is not None else "")
+        + (" without a LagrangianSystem (r.lagrangian)" if hasattr(system, "lagrangian") else "")
         + ": build it with daekit.mechanics.LagrangianSystem (and pass it or its index1()) or "
         "with daekit.simulate.rattle.ConstrainedMechanics"
     )

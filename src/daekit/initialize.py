@@ -138,10 +138,10 @@ class InitialValues:
     determined: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
-        from .model import expand_name
+        from .model import select_name
 
-        elems = expand_name(name, self.values, "these initial values")
-        if len(elems) == 1 and ("[" in name or not elems[0].endswith("]")):
+        elems, vector = select_name(name, self.values, "these initial values")
+        if not vector:
             return float(self.values[elems[0]])
         return np.array([self.values[e] for e in elems])
 

@@ -29,7 +29,7 @@ from .errors import ModelError, StructuralError
 from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
-           "NameNotFoundError"]
+           "select_name", "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
@@ -120,6 +120,22 @@ def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
     known = sorted({k.rsplit("[", 1)[0] if k.endswith("]") else k for k in keys})
     shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
     raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
+
+
+def select_name(name: str, keys, what: str = "the solution") -> tuple[list[str], bool]:
+    """The element names meant by ``name`` and whether ``name`` means a vector: the one rule
+    every result (``Trajectory``, ``InitialValues``, ``OCPSolution``) reads values by. A vector
+    name (``"p"`` of a vector ``p``, even of size 1) gives one column per element; an element
+    (``"p[1]"``) or a scalar (``"z"``) gives one value.
+
+    >>> select_name("p", ["p[0]", "p[1]", "z"]), select_name("p[1]", ["p[0]", "p[1]", "z"])
+    ((['p[0]', 'p[1]'], True), (['p[1]'], False))
+    >>> select_name("q", ["q[0]"]), select_name("z", ["p[0]", "z"])
+    ((['q[0]'], True), (['z'], False))
+    """
+    elems = expand_name(name, keys, what)
+    scalar = len(elems) == 1 and (elems[0] == name or "[" in name or not elems[0].endswith("]"))
+    return elems, not scalar
 
 
 @dataclass

@@ -16,7 +16,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import DaekitError, ModelError
-from .model import NameNotFoundError, element_name, expand_name, parse_name
+from .model import NameNotFoundError, element_name, expand_name, fit_elements, parse_name
 from .wording import count
 
 __all__ = ["InputSignal", "InputError", "resolve_params"]
@@ -96,13 +96,13 @@ class InputSignal:
             sx = ca.vec(ca.densify(sx))
             if olds:
                 sx = ca.substitute(sx, ca.vertcat(*olds), ca.vertcat(*news))
-            if sx.numel() == 1 and len(elems) > 1:
-                sx = ca.repmat(sx, len(elems), 1)
-            if sx.numel() != len(elems):
+            col = fit_elements(sx, len(elems))
+            if col is None:
                 raise InputError(
                     f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
                     f"{sx.numel()}"
                 )
+            sx = col
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
             if others:
                 raise InputError(

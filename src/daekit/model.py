@@ -29,7 +29,7 @@ from .errors import ModelError, StructuralError
 from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
-           "select_name", "NameNotFoundError"]
+           "select_name", "fit_elements", "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
@@ -120,6 +120,20 @@ def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
     known = sorted({k.rsplit("[", 1)[0] if k.endswith("]") else k for k in keys})
     shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
     raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
+
+
+def fit_elements(expr: ca.SX, n: int) -> ca.SX | None:
+    """``expr`` as a dense column of ``n`` elements (one element is repeated ``n`` times), or
+    None for any other size (each caller words its own error): the one rule by which a value
+    given for a vector name is broadcast (inputs, resets, RATTLE's inputs).
+
+    >>> fit_elements(ca.SX(2.0), 3).shape, fit_elements(ca.SX.zeros(2), 3)
+    ((3, 1), None)
+    """
+    col = ca.densify(ca.vec(expr))
+    if col.numel() == 1 and n > 1:
+        col = ca.repmat(col, n, 1)
+    return col if col.numel() == n else None
 
 
 def select_name(name: str, keys, what: str = "the solution") -> tuple[list[str], bool]:
@@ -565,14 +579,13 @@ class Model:
             except Exception:  # noqa: BLE001 - turned into a daekit error
                 raise ModelError(f"model {self.name!r}, {where}, reset {key!r}: cannot convert "
                                  f"{type(value).__name__} to a CasADi expression") from None
-            val = ca.densify(ca.vec(val))
-            if val.numel() == 1 and len(elems) > 1:
-                val = ca.repmat(val, len(elems), 1)
-            if val.numel() != len(elems):
+            col = fit_elements(val, len(elems))
+            if col is None:
                 raise ModelError(
                     f"model {self.name!r}, {where}, reset {key!r}: {len(elems)} value(s) needed, "
                     f"got {val.numel()}"
                 )
+            val = col
             self._check_symbols(val, f"{where}, reset {key!r}")
             bad = _nonfinite_constants(val)
             if bad:

@@ -52,6 +52,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import InitializationError, ModelError, SimulationError
+from ..model import fit_elements
 from ..wording import count
 from .progress import Progress
 from .trajectory import Trajectory
@@ -491,13 +492,13 @@ def _bind_inputs(
                 )
             if free:
                 expr = ca.substitute(expr, free[0], sysm.t)
-        if expr.numel() == 1 and len(elems) > 1:
-            expr = ca.repmat(expr, len(elems), 1)
-        if expr.numel() != len(elems):
+        col = fit_elements(expr, len(elems))
+        if col is None:
             raise SimulationError(
                 f"RATTLE: input {key!r} has {count(len(elems), 'element')} but "
                 f"{count(expr.numel(), 'value')}"
             )
+        expr = col
         for k, i in enumerate(elems):
             vals[i] = expr[k]
     for i in range(nu):  # inputs not given are zero (as in daekit.simulate)

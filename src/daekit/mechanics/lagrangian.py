@@ -41,10 +41,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import ModelError
-from .model import Model, element_name
-from .reduced import ReducedDAE
-from .wording import count
+from ..errors import ModelError
+from ..model import Model, element_name
+from ..reduced import ReducedDAE
+from ..wording import count
 
 __all__ = ["LagrangianSystem", "lagrangian"]
 

@@ -40,7 +40,7 @@ from .numerics import (
     sparse_rank_deficiency,
     sparse_rcond,
 )
-from .points import DRAWS, TestPoint, check_point, consistent_point
+from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
 from .structure.sigma import NoTransversal
 from .threads import blas_threads, limit_blas_threads
@@ -104,6 +104,14 @@ def _at_finite_point(model: Model, point: dict | None, seed: int, work, what: st
         f"model's domain, e.g. {what}(model, point={{'x': 2.0, 'der(x)': 0.5}}) with your "
         "variables' names; values not given are drawn at random."
     )
+
+
+def _require_finite_dense(val: np.ndarray, labels) -> None:
+    """:func:`_require_finite` for a dense matrix."""
+    bad = ~np.isfinite(val)
+    if bad.any():
+        rows = np.nonzero(bad.any(axis=1))[0].tolist()
+        raise _NonFinite([labels(r) if callable(labels) else labels[r] for r in rows])
 
 
 def _require_finite(val: sp.csr_matrix, labels) -> None:
@@ -472,6 +480,8 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     level = model.residual[rows]
     levels: list[ca.SX] = []  # the array's levels F, F', ..., F^(k) of these equations
     ranks: list[tuple[int, int, int]] = []
+    rnd = other = None  # the random point, and the second consistent point (kept between
+    # levels: each level's Gauss-Newton starts where the previous one ended)
     for k in range(max_index + 1):
         if k > 0:
             sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
@@ -500,22 +510,27 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         levels.append(level)
         arr = ca.vertcat(*levels)
         jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
+        at = PointFunction(model, jac_sym)  # made once, evaluated at each point
         tgt = np.array(target, dtype=bool)
-        r_all = r_rest = r_full = -1
-        at_random = pt.sparse(jac_sym) if k == 0 or pt.status is None else None
-        if at_random is None:
-            at_random = pt.random_copy().sparse(jac_sym)
-        for q in _array_points(pt, arr):
-            full = _vanishing_removed(q.sparse(jac_sym), at_random)
-            _require_finite(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
-                                                    r // len(rows)))
-            full = full.toarray()
+        r_all = r_rest = -1
+        if k == 0 or pt.status is None:
+            at_random = at.dense(pt)
+        else:
+            rnd = rnd if rnd is not None else pt.random_copy()
+            at_random = at.dense(rnd)
+        points, other = _array_points(pt, arr, other)
+        fulls = []
+        for q in points:
+            full = _vanishing_removed_dense(at.dense(q), at_random)
+            _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
+                                                          r // len(rows)))
             jac = full[:, : len(col_j)]
             r_all = max(r_all, numeric_rank(jac)[0])
             r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
-            r_full = max(r_full, numeric_rank(full)[0] if len(state_j) else 0)
+            fulls.append(full)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
+            r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0
             constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
@@ -529,14 +544,20 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     )
 
 
-def _array_points(pt: _Point, arr: ca.SX) -> list[_Point]:
-    """Two points on ``arr = 0`` (``pt`` itself, moved, and a sibling), or ``[pt]`` as it is
-    when no consistent point is found (then ``pt.status`` says so)."""
-    st = consistent_point(pt, arr)
+def _array_points(pt: _Point, arr: ca.SX, other: _Point | None = None
+                  ) -> tuple[list[_Point], _Point | None]:
+    """Two points on ``arr = 0`` (``pt`` itself, moved, and ``other``: a sibling, or the
+    given one moved, with ``pt``'s time and inputs), or ``[pt]`` as it is when no consistent
+    point is found (then ``pt.status`` says so). Returns the points and ``other``."""
+    cache: dict = {}  # the functions of the iteration, made once for both points
+    st = consistent_point(pt, arr, cache=cache)
     if not st.consistent:
-        return [pt]
-    other = pt.sibling(1)
-    return [pt, other] if consistent_point(other, arr).consistent else [pt]
+        return [pt], other
+    if other is None:
+        other = pt.sibling(1)
+    else:
+        other.hold_from(pt)
+    return ([pt, other] if consistent_point(other, arr, cache=cache).consistent else [pt]), other
 
 
 # ----------------------------------------------------------------------------- analyze
@@ -666,6 +687,14 @@ def _vanishing_removed(at_consistent: sp.spmatrix, at_random: sp.spmatrix) -> sp
         r_, c_ = c.nonzero()
         c[r_[tiny], c_[tiny]] = 0.0
         c.eliminate_zeros()
+    return c
+
+
+def _vanishing_removed_dense(at_consistent: np.ndarray, at_random: np.ndarray) -> np.ndarray:
+    """:func:`_vanishing_removed` for dense matrices of the same expression."""
+    c = np.array(at_consistent, dtype=float)
+    tiny = (c != 0) & (np.abs(c) <= VANISH * np.abs(at_random))
+    c[tiny] = 0.0
     return c
 
 

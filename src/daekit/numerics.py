@@ -418,7 +418,8 @@ class FastFunction:
     nonzeros, as dense vectors) come back as NumPy arrays. A call costs about a microsecond
     where ``f(*args)`` with NumPy arguments costs 30-80 (SWIG's conversions to and from
     ``DM``); for the many small evaluations of Gauss--Newton that is most of the time.
-    One buffer per thread, so that threads may share the object. Not picklable (rebuild it).
+    One buffer per thread, so that threads may share the object; copies and pickles rebuild
+    them.
 
     Example
     -------
@@ -456,8 +457,8 @@ class FastFunction:
         loc.trigger()
         return [o.copy() for o in loc.outs]
 
-    def __getstate__(self):
-        raise TypeError("FastFunction holds CasADi buffers: rebuild it from its Function")
+    def __reduce__(self):  # the buffers are per process and thread: rebuilt from f
+        return (FastFunction, (self.f,))
 
 
 class SparseFunction:

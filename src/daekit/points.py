@@ -489,14 +489,15 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     G = ca.vertcat(ca.vec(r.alg), ca.vec(r.invariants) if r.invariants.numel() else ca.SX(0, 1))
     G = ca.substitute([G], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
                       [t_s, w, u_s, ca.DM(r.p_values)])[0]
-    f = ca.Function("g", [t_s, u_s, w], [G])
+    f = FastFunction(ca.Function("g", [t_s, u_s, w], [G]))
     fj = SparseFunction([t_s, u_s, w], ca.jacobian(G, w))
+    jac = fj.dense if _is_dense(n, G.numel()) else fj
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
         w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
-        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: np.asarray(f(tv, uv, x), dtype=float).ravel(),
-                              w0, jac=lambda x, tv=tv, uv=uv: fj(tv, uv, x))
+        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x)[0],
+                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x))
         if st.consistent:
             return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
     return None

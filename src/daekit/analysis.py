@@ -456,10 +456,18 @@ def _short(names: list[str], limit: int = 10) -> str:
 
 
 def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
-                      soft: bool = False) -> DerivativeArrayResult | None:
+                      soft: bool = False, top_first: bool = False
+                      ) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
-    new derivatives), assembled into dense matrices for the rank decisions."""
+    new derivatives), assembled into dense matrices for the rank decisions.
+
+    ``top_first`` (with ``max_index``): the level ``max_index`` is tested first; where it does
+    not determine the derivatives no lower level does (the array of level ``k`` is part of that
+    of level ``k + 1`` and does not contain its new derivatives, so derivatives determined at
+    level ``k`` are determined at every higher level), and the result is None at once (only
+    with ``soft``): one pair of consistent points and one rank test instead of one per level.
+    """
     rows = [int(i) for i in rows]
     cols = [int(j) for j in cols]
     n = len(cols)
@@ -477,57 +485,84 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     state_j = [j for j, sj in zip(cols, s_ord) for _ in range(sj)]
     state_r = [r for sj in s_ord for r in range(sj)]
     X_s = model.symbols_at(state_j, state_r)
-    level = model.residual[rows]
-    levels: list[ca.SX] = []  # the array's levels F, F', ..., F^(k) of these equations
-    ranks: list[tuple[int, int, int]] = []
-    rnd = other = None  # the random point, and the second consistent point (kept between
-    # levels: each level's Gauss-Newton starts where the previous one ended)
-    for k in range(max_index + 1):
-        if k > 0:
-            sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
-            sr = [r for mj in m for r in range(mj + k)]
-            syms = [t, model.symbols_at(sj, sr), model.symbols_at(sj, [r + 1 for r in sr])]
-            v, w = [syms[0], syms[1]], [ca.SX(1), syms[2]]
-            for var in model.controls:
-                for r in range(ctrl_top[var.name] + k):
-                    v.append(var.der(r))
-                    w.append(var.der(r + 1))
-            level = ca.jtimes(level, ca.vertcat(*v), ca.vertcat(*w))
-            col_j += cols
-            col_r += [int(mj) + k for mj in m]
-            target += [int(mj) + k == sj for sj, mj in zip(s_ord, m)]
-        if (k + 1) * len(rows) > ARRAY_LIMIT:
-            if soft:
-                return None
-            raise ModelError(
-                f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
-                f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
-                f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
-                "equations are regular (point=...), or check that they determine their "
-                "unknowns at all"
-            )
-        X = model.symbols_at(col_j, col_r)
-        levels.append(level)
-        arr = ca.vertcat(*levels)
-        jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
-        at = PointFunction(model, jac_sym)  # made once, evaluated at each point
-        tgt = np.array(target, dtype=bool)
-        r_all = r_rest = -1
+    levels: list[ca.SX] = [model.residual[rows]]  # F, F', ..., F^(k) of these equations
+    ncols = [len(col_j)]  # columns of the array's derivative block at each level
+
+    def grow(k: int) -> None:
+        """Add level ``k`` (the previous one differentiated once)."""
+        sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
+        sr = [r for mj in m for r in range(mj + k)]
+        syms = [t, model.symbols_at(sj, sr), model.symbols_at(sj, [r + 1 for r in sr])]
+        v, w = [syms[0], syms[1]], [ca.SX(1), syms[2]]
+        for var in model.controls:
+            for r in range(ctrl_top[var.name] + k):
+                v.append(var.der(r))
+                w.append(var.der(r + 1))
+        levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
+        col_j.extend(cols)
+        col_r.extend(int(mj) + k for mj in m)
+        target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
+        ncols.append(len(col_j))
+
+    def too_long(k: int) -> bool:
+        if (k + 1) * len(rows) <= ARRAY_LIMIT:
+            return False
+        if soft:
+            return True
+        raise ModelError(
+            f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
+            f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+            f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
+            "equations are regular (point=...), or check that they determine their "
+            "unknowns at all"
+        )
+
+    state = {"rnd": None, "other": None}  # the random point, and the second consistent
+    # point (kept between levels: each level's Gauss-Newton starts where the last one ended)
+
+    def test(k: int):
+        """Ranks at level ``k``: ``(r_all, r_rest, fulls)`` over the consistent points."""
+        nc = ncols[k]
+        X = model.symbols_at(col_j[:nc], col_r[:nc])
+        arr = ca.vertcat(*levels[: k + 1])
+        at = PointFunction(model, ca.jacobian(arr, ca.vertcat(X, X_s)))  # made once
+        tgt = np.array(target[:nc], dtype=bool)
         if k == 0 or pt.status is None:
             at_random = at.dense(pt)
         else:
-            rnd = rnd if rnd is not None else pt.random_copy()
-            at_random = at.dense(rnd)
-        points, other = _array_points(pt, arr, other)
+            if state["rnd"] is None:
+                state["rnd"] = pt.random_copy()
+            at_random = at.dense(state["rnd"])
+        points, state["other"] = _array_points(pt, arr, state["other"])
+        r_all = r_rest = -1
         fulls = []
         for q in points:
             full = _vanishing_removed_dense(at.dense(q), at_random)
             _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
                                                           r // len(rows)))
-            jac = full[:, : len(col_j)]
+            jac = full[:, :nc]
             r_all = max(r_all, numeric_rank(jac)[0])
             r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
             fulls.append(full)
+        return r_all, r_rest, fulls
+
+    if top_first and soft and max_index > 0:
+        for k in range(1, max_index + 1):
+            if too_long(k):
+                return None
+            grow(k)
+        r_all, r_rest, _ = test(max_index)
+        if r_all - r_rest != n:
+            return None  # not determined at the top level: at no level below either
+    ranks: list[tuple[int, int, int]] = []
+    for k in range(max_index + 1):
+        if k >= len(levels):
+            if too_long(k):
+                return None
+            grow(k)
+        elif k == 0 and too_long(0):
+            return None
+        r_all, r_rest, fulls = test(k)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
             r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0
@@ -938,7 +973,8 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
         if len(cols) > CONFIRM_LIMIT or len(cols) * nu > CONFIRM_ARRAY_LIMIT:
             return None
         try:
-            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True)
+            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True,
+                                    top_first=True)
         except (ModelError, _NonFinite):
             res = None
         if res is None:

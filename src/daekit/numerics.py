@@ -77,39 +77,14 @@ def _curtis_reid(B) -> tuple[np.ndarray, np.ndarray]:
     """Log2 row and column factors minimizing ``sum (log2|a_ij| + r_i + c_j)^2`` over the
     nonzeros (Curtis & Reid, "On the automatic scaling of matrices for Gaussian
     elimination", J. Inst. Maths Applics 10, 1972): a linear least-squares problem whose
-    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all."""
-    m, n = B.shape
-    if not sp.issparse(B):
-        rows, cols = np.nonzero(B > 0)
-        vals = np.log2(B[rows, cols])
-    else:
-        C = sp.coo_matrix(B)
-        keep = C.data > 0
-        rows, cols, vals = C.row[keep], C.col[keep], np.log2(C.data[keep])
-    k = rows.size
-    if k == 0:
-        return np.zeros(m), np.zeros(n)
-    if m + n <= DENSE_CR:
-        # the same normal equations, dense (small matrices: SciPy's sparse overhead would
-        # dominate)
-        K = np.zeros((m + n, m + n))
-        K[rows, m + cols] = 1.0
-        K[m + cols, rows] = 1.0
-        idx = np.arange(m + n)
-        K[idx, idx] = np.r_[np.bincount(rows, minlength=m), np.bincount(cols, minlength=n)] + 1e-10
-        b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-        sol = np.linalg.solve(K, b)
-        return sol[:m], sol[m:]
-    # normal equations: [[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[P 1 ...]
-    # (P the pattern), singular along (1, -1) per connected component: a tiny ridge picks the
-    # least-norm solution without changing the scaled matrix
-    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
-    rc = np.bincount(rows, minlength=m).astype(float)
-    cc = np.bincount(cols, minlength=n).astype(float)
-    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
-    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-    sol = sp.linalg.spsolve(K, b)
-    return sol[:m], sol[m:]
+    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all. Its normal
+    equations ``[[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[...]`` (``P``
+    the pattern) are singular along ``(1, -1)`` per connected component: a tiny ridge picks
+    the least-norm solution without changing the scaled matrix (see :func:`_curtis_reid_log`)."""
+    C = sp.coo_matrix(B)
+    keep = C.data > 0
+    return _curtis_reid_log(C.shape[0], C.shape[1], C.row[keep], C.col[keep],
+                            np.log2(C.data[keep]))
 
 
 def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
@@ -132,6 +107,8 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     issparse = sp.issparse(A)
     if issparse and A.shape[0] * A.shape[1] <= DENSE_EQUILIBRATE:
         A, issparse = A.toarray(), False
+    if not issparse:
+        return _equilibrate_dense(A)
     if issparse:
         B = abs(sp.csr_matrix(A, dtype=float))
         B.data[~np.isfinite(B.data)] = 0.0
@@ -166,6 +143,77 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     lr, lc = _curtis_reid(keep)
     dr, dc = np.exp2(np.round(lr)), np.exp2(np.round(lc))
     return _ruiz(B, dr, dc, issparse)
+
+
+def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equilibrate` of a dense matrix, in the exponents: with ``L = log2 |A|`` the
+    scaled entries are ``L + e_r + e_c`` (integer exponents, added exactly), so that each
+    Ruiz sweep is a few whole-array operations and no product is formed; the factors are
+    those of the same iteration on ``|A|`` itself."""
+    B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
+    m, n = B.shape
+    if m == 0 or n == 0:
+        return np.ones(m), np.ones(n)
+    ok = np.isfinite(B)
+    if not ok.all():
+        B = np.where(ok, B, 0.0)
+    # entries below ROW_NOISE of their row's largest: rounding residue of exact zeros
+    B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
+    nz = B > 0
+    L = np.log2(B, out=np.full(B.shape, -np.inf), where=nz)
+    e = _ruiz_log(L, np.zeros(m), np.zeros(n))
+    # entries below NOISE of both their row's and column's largest after Ruiz: ignored by
+    # Curtis--Reid (see equilibrate)
+    keep = nz & (L + e[0][:, None] + e[1][None, :] > _LOG2_NOISE)
+    rows, cols = np.nonzero(keep)
+    lr, lc = _curtis_reid_log(m, n, rows, cols, L[rows, cols])
+    er, ec = _ruiz_log(L, np.round(lr), np.round(lc))
+    return np.exp2(er), np.exp2(ec)
+
+
+_LOG2_NOISE = float(np.log2(NOISE))
+
+
+def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
+    """Ruiz's iteration (see :func:`_ruiz`) on the exponents: ``L`` the log2 magnitudes
+    (``-inf`` for zeros), ``er``, ``ec`` the exponents of the row and column factors."""
+    m = L.shape[0]
+    for _ in range(RUIZ_ITERATIONS):
+        S = L + er[:, None] + ec[None, :]
+        mx = np.concatenate([S.max(axis=1), S.max(axis=0)])
+        # the factor 2**-round(log2(max) / 2); zero rows and columns (-inf) keep factor 1
+        f = -np.round(0.5 * mx)
+        f[~np.isfinite(f)] = 0.0
+        if not f.any():
+            break
+        er = er + f[:m]
+        ec = ec + f[m:]
+    return er, ec
+
+
+def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_curtis_reid` from the nonzeros' positions and log2 magnitudes."""
+    k = rows.size
+    if k == 0:
+        return np.zeros(m), np.zeros(n)
+    if m + n <= DENSE_CR:
+        K = np.zeros((m + n, m + n))
+        K[rows, m + cols] = 1.0
+        K[m + cols, rows] = 1.0
+        idx = np.arange(m + n)
+        K[idx, idx] = np.concatenate([np.bincount(rows, minlength=m),
+                                      np.bincount(cols, minlength=n)]) + 1e-10
+        b = -np.concatenate([np.bincount(rows, vals, minlength=m),
+                             np.bincount(cols, vals, minlength=n)])
+        sol = np.linalg.solve(K, b)
+        return sol[:m], sol[m:]
+    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
+    rc = np.bincount(rows, minlength=m).astype(float)
+    cc = np.bincount(cols, minlength=n).astype(float)
+    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
+    sol = sp.linalg.spsolve(K, b)
+    return sol[:m], sol[m:]
 
 
 def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:

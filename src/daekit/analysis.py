@@ -36,12 +36,13 @@ from .model import Model
 from .numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
+    FastFunction,
     rank_info,
     sparse_rank_deficiency,
     sparse_rcond,
 )
 from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
-from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
+from .structure import block_triangular, dulmage_mendelsohn, structural_index
 from .structure.sigma import NoTransversal
 from .threads import blas_threads, limit_blas_threads
 from .wording import count
@@ -733,31 +734,53 @@ def _vanishing_removed_dense(at_consistent: np.ndarray, at_random: np.ndarray) -
     return c
 
 
+class _JacobianAt:
+    """The entries ``dF_rows[k] / d x_cols[k]^(orders[k])`` as one CasADi function (made once,
+    evaluated at several points): ``jac(pt)`` is the numeric sparse matrix; raises
+    :class:`_NonFinite` naming the equations with NaN or inf entries."""
+
+    def __init__(self, model: Model, rows, cols, orders) -> None:
+        self.model = model
+        self.rows, self.cols = np.asarray(rows), np.asarray(cols)
+        F = model.residual
+        th = model.t.element_hash()
+        parts, take = [], []
+        nnz = 0
+        for order in np.unique(orders):
+            sel = np.nonzero(orders == order)[0]
+            cols_k = np.unique(self.cols[sel])
+            J = ca.jacobian(F, model.symbols(cols_k, int(order)))
+            r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
+            pos = {(a, int(cols_k[b])): nnz + k for k, (a, b) in enumerate(zip(r, cc))}
+            take.append((sel, np.array([pos.get((int(self.rows[q]), int(self.cols[q])), -1)
+                                        for q in sel], dtype=np.int64)))
+            parts.append(J.nz[:] if J.nnz() else ca.SX(0, 1))
+            nnz += J.nnz()
+        expr = ca.vertcat(*parts) if parts else ca.SX(0, 1)
+        self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
+        self.f = FastFunction(ca.Function("sparse_jacobian", [model.t, S], [expr]))
+        self.take = take
+        self.n = len(self.rows)
+
+    def __call__(self, pt: _Point) -> sp.csr_matrix:
+        model = self.model
+        nz = self.f(pt.t, pt.evaluate(self.syms))[0]
+        data = np.zeros(self.n)
+        for sel, idx in self.take:
+            data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)
+        bad = ~np.isfinite(data)
+        if np.any(bad):
+            names = model.equation_names
+            raise _NonFinite([names[i] for i in sorted(set(self.rows[bad].tolist()))])
+        return sp.csr_matrix((data, (self.rows, self.cols)),
+                             shape=(model.n_equations, model.n_unknowns))
+
+
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
     """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
-    n = model.n_unknowns
-    data = np.zeros(len(rows))
-    F = model.residual
-    th = model.t.element_hash()
-    for order in np.unique(orders):
-        sel = np.nonzero(orders == order)[0]
-        cols_k = np.unique(cols[sel])
-        X = model.symbols(cols_k, int(order))
-        J = ca.jacobian(F, X)
-        syms = [s for s in ca.symvar(J) if s.element_hash() != th]
-        f = ca.Function("sparse_jacobian", [model.t, ca.vertcat(*syms)], [J])
-        val = ca.DM(f(pt.t, pt.evaluate(syms)))
-        r, cc = val.sparsity().get_triplet()
-        pos = {(a, int(cols_k[b])): k for k, (a, b) in enumerate(zip(r, cc))}
-        nz = np.asarray(val.nonzeros())
-        idx = np.array([pos.get((int(rows[s]), int(cols[s])), -1) for s in sel], dtype=np.int64)
-        data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if len(nz) else 0.0, 0.0)
-    bad = ~np.isfinite(data)
-    if np.any(bad):
-        names = model.equation_names
-        raise _NonFinite([names[i] for i in sorted(set(np.asarray(rows)[bad].tolist()))])
-    return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
+    return _JacobianAt(model, rows, cols, orders)(pt)
 
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
@@ -823,7 +846,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     inc = model.incidence()
     n = inc.n_unknowns
     try:
-        sig = sigma_method(n, inc.rows, inc.cols, inc.vals)
+        sig = model.sigma()
     except NoTransversal:  # validate() guarantees a matching exists; keep a clear message
         raise ModelError(f"model {model.name!r} has no transversal (structurally singular)") from None
     c, d = sig.c, sig.d
@@ -841,10 +864,12 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 
     eq_lab, unk_lab = _components(inc)
 
+    jac_at = _JacobianAt(model, jrows, jcols, jvals)  # made once for every test point
+
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
         #    (the rank there is the generic one), so structural analysis fails for sure
-        jac = _sparse_jacobian(model, jrows, jcols, jvals, pt)
+        jac = jac_at(pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
         checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
@@ -857,7 +882,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt), jac)
+            jac_c = _vanishing_removed(jac_at(pt), jac)
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -871,7 +896,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
+                jac2 = _vanishing_removed(jac_at(pt2), jac)
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)

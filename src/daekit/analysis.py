@@ -277,6 +277,10 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
     deficiency is the number of tiny pivots, and all the block's rows are named)."""
     rows = [int(i) for i in rows]
     size = len(rows)
+    if size == 1:  # a scalar block: regular iff its entry is nonzero (and finite)
+        v = float(jac[rows[0], int(cols[0])])
+        ok = v != 0.0 and np.isfinite(v)
+        return _RankCheck(rows, 1, int(ok), 1.0 if ok else 0.0, [] if ok else rows)
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
         info = rank_info(sub)

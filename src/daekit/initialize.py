@@ -154,10 +154,15 @@ class InitialValues:
         )
 
 
-def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, float]]:
+def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = None
+                 ) -> list[tuple[str, int, float]]:
     """(element name, row in the system's variable vector, value) for each element meant by
-    ``key``."""
+    ``key``; ``names_of``: a cache of the elements of each key already resolved."""
     from .model import NameNotFoundError, expand_name
+
+    elems = names_of.get(key) if names_of is not None and isinstance(key, str) else None
+    if elems is not None:
+        return _with_values(elems, key, val, what, row_of)
 
     pnames = list(getattr(r, "p_names", []) or [])
     if pnames and isinstance(key, str):
@@ -173,6 +178,14 @@ def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, fl
         elems = expand_name(key, r.variables, "the model")
     except NameNotFoundError as exc:
         raise InitializationError(f"{what}: {exc}") from None
+    if names_of is not None:
+        names_of[key] = elems
+    return _with_values(elems, key, val, what, row_of)
+
+
+def _with_values(elems: list[str], key: str, val, what: str, row_of
+                 ) -> list[tuple[str, int, float]]:
+    """The values ``val`` given for ``key`` (elements ``elems``), checked."""
     try:
         arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
     except (TypeError, ValueError):
@@ -246,6 +259,8 @@ class _SystemCache:
         self.settle = {}
         self.hess: dict = {}
         self.zdep = None
+        self.default_inputs = None  # the InputSignal of inputs=None
+        self.names_of: dict = {}  # a fixed/guessed key -> its elements and rows
 
     def describe(self, rows: np.ndarray) -> None:
         """Fill ``sym_hash``, ``w_pos`` and ``elems`` for ``rows`` (one slice of ``V``)."""
@@ -422,10 +437,15 @@ def initialize(
     nx, nz = r.nx, r.nz
     n = nx + nz
     pv = resolve_params(r, params)
-    sig = InputSignal(r, inputs)
+    sc = _system_cache(r)
+    if inputs:
+        sig = InputSignal(r, inputs)
+    else:  # the default inputs (zero) depend on the system only: made once
+        if sc.default_inputs is None:
+            sc.default_inputs = InputSignal(r, None)
+        sig = sc.default_inputs
     u0 = sig.value(t0)
 
-    sc = _system_cache(r)
     args = (t0, u0, pv)
 
     for what, given in (("fixed", fixed), ("guess", guess)):
@@ -436,10 +456,10 @@ def initialize(
             )
     fixed_items: list[tuple[str, int, float]] = []
     for k, v in (fixed or {}).items():
-        fixed_items += _name_values(r, k, v, "fixed", sc.row_of)
+        fixed_items += _name_values(r, k, v, "fixed", sc.row_of, sc.names_of)
     guess_items: list[tuple[str, int, float]] = []
     for k, v in (guess or {}).items():
-        guess_items += _name_values(r, k, v, "guess", sc.row_of)
+        guess_items += _name_values(r, k, v, "guess", sc.row_of, sc.names_of)
     fixed_names = [f[0] for f in fixed_items]
     dup = {nm for nm, c in Counter(fixed_names).items() if c > 1}
     if dup:
@@ -730,7 +750,8 @@ def initialize(
 
     determined, notes = [], []
     if not use_sparse and fixed_items:
-        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names),
+        pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
+        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names), pinned,
                                         {nm for nm, _, _ in guess_items})
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
@@ -774,11 +795,13 @@ def _other_sign(wv, i: int, hval, scale: float, iters: int = 12) -> bool:
     return False
 
 
-def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
+def _determined(r, wv, J, hval, scale, fixed: set[str], pinned: set[int], guessed: set[str]):
     """States (and dummy states) not fixed but locally determined: their unit vectors are
     orthogonal to the null space of the Jacobian of ``[alg; invariants; fixed]``. A determined
     value whose negative satisfies the equations too (a quaternion component from
-    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it."""
+    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it. ``pinned``:
+    positions in ``w`` that a fixed value holds directly (under another name, e.g. ``v[0]``
+    by ``der(p)[0]``): their other sign breaks that fixed value, no search needed."""
     J = np.asarray(J, dtype=float)
     if J.size == 0:
         return [], []
@@ -795,7 +818,7 @@ def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
             continue
         determined.append(nm)
         v = float(wv[i])
-        if abs(v) <= 1e-9 * scale:
+        if abs(v) <= 1e-9 * scale or i in pinned:
             continue
         if _other_sign(wv, i, hval, scale):
             whose = "the guess" if nm in guessed else "the starting point"
@@ -890,6 +913,7 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
     afun = FastFunction(ca.Function("alg_z", list(args), [alg, Jz]))
     ccs = _ccs(afun.f.sparsity_out(1))
     count = 1 if affine else iters
+    scalar = not sparse and int(zs.numel()) == 1 and int(alg.numel()) == 1
 
     def settle(wv: np.ndarray, vals) -> np.ndarray:
         w1 = np.array(wv, dtype=float)
@@ -904,6 +928,17 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
+            if scalar:  # one algebraic unknown: no LAPACK call needed
+                a = float(A[0, 0])
+                if a == 0.0:
+                    return wv  # z is not determined by alg here (singular)
+                if ng == 0.0:
+                    break
+                dz = np.array([-g[0] / a])
+                w1[nx:] += dz
+                if abs(dz[0]) <= 1e-13 * (1.0 + abs(w1[nx])):
+                    break
+                continue
             if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
                 return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
@@ -1090,31 +1125,46 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
     ``1e-10`` of the terms that make them; the invariants of a dummy-derivative system, which
     its algebraic equations contain, vanish entirely) are dropped. The number of dependent
     states is the scale-invariant rank (:func:`daekit.numerics.rank`) of ``Jc`` less that of
-    its ``z`` columns; a column-pivoted QR of the equilibrated ``J`` picks them (the pivots);
+    its ``z`` columns (where ``d alg / d z`` is square and nonsingular: the rank of ``J``
+    itself); a column-pivoted QR of the equilibrated ``J`` picks them (the pivots);
     the remaining states are free. The user's fixed states are weighted down so that they are
     reported free whenever they can be.
     """
-    from .numerics import equilibrate, rank
+    from .numerics import RANK_RTOL, equilibrate, rank, rank_info
 
     nz = Jc.shape[1] - nx
     n_alg = r.nz if r.alg.numel() == r.nz else int(r.alg.numel())
     Ja, Ji = Jc[:n_alg], Jc[n_alg:]
     if Ji.shape[0] == 0 or nx == 0:
         return set(r.x_names)
+    regular = False  # d alg / d z square and nonsingular (scale-invariant test)
     if nz and n_alg:
         dr, dc = equilibrate(Ja[:, nx:])
-        Y = dc[:, None] * np.linalg.lstsq(Ja[:, nx:] * dr[:, None] * dc[None, :],
-                                          Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
+        Bz = Ja[:, nx:] * dr[:, None] * dc[None, :]
+        if n_alg == nz:
+            sv = np.linalg.svd(Bz, compute_uv=False)
+            regular = bool(sv.size and sv[-1] > RANK_RTOL * nz * sv[0])
+        if regular:
+            Y = dc[:, None] * np.linalg.solve(Bz, Ja[:, :nx] * dr[:, None])
+        else:
+            Y = dc[:, None] * np.linalg.lstsq(Bz, Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
         T = Ji[:, nx:] @ Y
         Jred = Ji[:, :nx] - T
         Jred[np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T))] = 0.0
     else:
         Jred = Ji[:, :nx].copy()
-    k = rank(Jc) - (rank(Jc[:, nx:]) if nz else 0)
+    if regular or not nz:
+        # rank Jc - rank Jc_z = rank of the Schur complement Jred (z eliminated exactly)
+        info = rank_info(Jred)
+        k, dr, dc = info.rank, info.dr, info.dc
+    else:
+        k = rank(Jc) - (rank(Jc[:, nx:]) if nz else 0)
+        dr = dc = None
     k = max(0, min(k, nx))
     if k == 0:
         return set(r.x_names)
-    dr, dc = equilibrate(Jred)
+    if dr is None:
+        dr, dc = equilibrate(Jred)
     colw = np.array([1e-2 if nm in fixed else 1.0 for nm in r.x_names])
     _, _, piv = scipy.linalg.qr(Jred * dr[:, None] * dc[None, :] * colw[None, :],
                                 mode="economic", pivoting=True)

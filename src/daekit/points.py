@@ -377,15 +377,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     if not (np.all(np.isfinite(h)) and np.all(np.isfinite(Jdata))):
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
+    inv_dc = 1.0 / dc
 
     def merit(hv):
         return np.abs(dr * hv)
 
     def level(wv):
-        return tol * (1.0 + float(np.max(np.abs(wv / dc)))) if n else tol
+        return tol * (1.0 + float(np.abs(wv * inv_dc).max())) if n else tol
 
     def finite(hv):
-        return bool(np.all(np.isfinite(hv)))
+        return bool(np.isfinite(hv).all())
 
     r = merit(h)
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
@@ -412,23 +413,24 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             if not np.all(np.isfinite(J if dense else J.data)):
                 break
         d = _min_norm_step(scaled(J), dr * h)
-        if d is None or not np.all(np.isfinite(d)):
+        if d is None or not finite(d):
             break
-        size = float(np.max(np.abs(d))) if d.size else 0.0
+        size = float(np.abs(d).max()) if d.size else 0.0
         alpha = min(1.0, radius / size) if size > 0 else 1.0
-        norm0 = np.linalg.norm(r)
+        norm0 = float(np.sqrt(r @ r))
+        dw = dc * d
         for _ in range(30):
-            wn = w + alpha * dc * d
+            wn = w + alpha * dw
             hn = fun(wn)
             if finite(hn):
                 rn = merit(hn)
-                if np.linalg.norm(rn) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
+                if float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
                     break
             alpha *= 0.5
         else:
             break
         radius = 4.0 * alpha * size if alpha * size * 1.5 >= radius else max(alpha * size, 1e-8)
-        radius = max(radius, 1e-3 * (1.0 + float(np.max(np.abs(wn / dc)))))
+        radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
 

@@ -36,12 +36,13 @@ from .model import Model
 from .numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
+    FastFunction,
     rank_info,
     sparse_rank_deficiency,
     sparse_rcond,
 )
-from .points import DRAWS, TestPoint, check_point, consistent_point
-from .structure import block_triangular, dulmage_mendelsohn, sigma_method, structural_index
+from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
+from .structure import block_triangular, dulmage_mendelsohn, structural_index
 from .structure.sigma import NoTransversal
 from .threads import blas_threads, limit_blas_threads
 from .wording import count
@@ -104,6 +105,14 @@ def _at_finite_point(model: Model, point: dict | None, seed: int, work, what: st
         f"model's domain, e.g. {what}(model, point={{'x': 2.0, 'der(x)': 0.5}}) with your "
         "variables' names; values not given are drawn at random."
     )
+
+
+def _require_finite_dense(val: np.ndarray, labels) -> None:
+    """:func:`_require_finite` for a dense matrix."""
+    bad = ~np.isfinite(val)
+    if bad.any():
+        rows = np.nonzero(bad.any(axis=1))[0].tolist()
+        raise _NonFinite([labels(r) if callable(labels) else labels[r] for r in rows])
 
 
 def _require_finite(val: sp.csr_matrix, labels) -> None:
@@ -268,6 +277,10 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
     deficiency is the number of tiny pivots, and all the block's rows are named)."""
     rows = [int(i) for i in rows]
     size = len(rows)
+    if size == 1:  # a scalar block: regular iff its entry is nonzero (and finite)
+        v = float(jac[rows[0], int(cols[0])])
+        ok = v != 0.0 and np.isfinite(v)
+        return _RankCheck(rows, 1, int(ok), 1.0 if ok else 0.0, [] if ok else rows)
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
         info = rank_info(sub)
@@ -448,10 +461,18 @@ def _short(names: list[str], limit: int = 10) -> str:
 
 
 def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
-                      soft: bool = False) -> DerivativeArrayResult | None:
+                      soft: bool = False, top_first: bool = False
+                      ) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
-    new derivatives), assembled into dense matrices for the rank decisions."""
+    new derivatives), assembled into dense matrices for the rank decisions.
+
+    ``top_first`` (with ``max_index``): the level ``max_index`` is tested first; where it does
+    not determine the derivatives no lower level does (the array of level ``k`` is part of that
+    of level ``k + 1`` and does not contain its new derivatives, so derivatives determined at
+    level ``k`` are determined at every higher level), and the result is None at once (only
+    with ``soft``): one pair of consistent points and one rank test instead of one per level.
+    """
     rows = [int(i) for i in rows]
     cols = [int(j) for j in cols]
     n = len(cols)
@@ -469,53 +490,87 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     state_j = [j for j, sj in zip(cols, s_ord) for _ in range(sj)]
     state_r = [r for sj in s_ord for r in range(sj)]
     X_s = model.symbols_at(state_j, state_r)
-    level = model.residual[rows]
-    levels: list[ca.SX] = []  # the array's levels F, F', ..., F^(k) of these equations
-    ranks: list[tuple[int, int, int]] = []
-    for k in range(max_index + 1):
-        if k > 0:
-            sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
-            sr = [r for mj in m for r in range(mj + k)]
-            syms = [t, model.symbols_at(sj, sr), model.symbols_at(sj, [r + 1 for r in sr])]
-            v, w = [syms[0], syms[1]], [ca.SX(1), syms[2]]
-            for var in model.controls:
-                for r in range(ctrl_top[var.name] + k):
-                    v.append(var.der(r))
-                    w.append(var.der(r + 1))
-            level = ca.jtimes(level, ca.vertcat(*v), ca.vertcat(*w))
-            col_j += cols
-            col_r += [int(mj) + k for mj in m]
-            target += [int(mj) + k == sj for sj, mj in zip(s_ord, m)]
-        if (k + 1) * len(rows) > ARRAY_LIMIT:
-            if soft:
-                return None
-            raise ModelError(
-                f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
-                f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
-                f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
-                "equations are regular (point=...), or check that they determine their "
-                "unknowns at all"
-            )
-        X = model.symbols_at(col_j, col_r)
-        levels.append(level)
-        arr = ca.vertcat(*levels)
-        jac_sym = ca.jacobian(arr, ca.vertcat(X, X_s))
-        tgt = np.array(target, dtype=bool)
-        r_all = r_rest = r_full = -1
-        at_random = pt.sparse(jac_sym) if k == 0 or pt.status is None else None
-        if at_random is None:
-            at_random = pt.random_copy().sparse(jac_sym)
-        for q in _array_points(pt, arr):
-            full = _vanishing_removed(q.sparse(jac_sym), at_random)
-            _require_finite(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
-                                                    r // len(rows)))
-            full = full.toarray()
-            jac = full[:, : len(col_j)]
+    levels: list[ca.SX] = [model.residual[rows]]  # F, F', ..., F^(k) of these equations
+    ncols = [len(col_j)]  # columns of the array's derivative block at each level
+
+    def grow(k: int) -> None:
+        """Add level ``k`` (the previous one differentiated once)."""
+        sj = [j for j, mj in zip(cols, m) for _ in range(mj + k)]
+        sr = [r for mj in m for r in range(mj + k)]
+        syms = [t, model.symbols_at(sj, sr), model.symbols_at(sj, [r + 1 for r in sr])]
+        v, w = [syms[0], syms[1]], [ca.SX(1), syms[2]]
+        for var in model.controls:
+            for r in range(ctrl_top[var.name] + k):
+                v.append(var.der(r))
+                w.append(var.der(r + 1))
+        levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
+        col_j.extend(cols)
+        col_r.extend(int(mj) + k for mj in m)
+        target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
+        ncols.append(len(col_j))
+
+    def too_long(k: int) -> bool:
+        if (k + 1) * len(rows) <= ARRAY_LIMIT:
+            return False
+        if soft:
+            return True
+        raise ModelError(
+            f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
+            f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+            f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
+            "equations are regular (point=...), or check that they determine their "
+            "unknowns at all"
+        )
+
+    state = {"rnd": None, "other": None}  # the random point, and the second consistent
+    # point (kept between levels: each level's Gauss-Newton starts where the last one ended)
+
+    def test(k: int):
+        """Ranks at level ``k``: ``(r_all, r_rest, fulls)`` over the consistent points."""
+        nc = ncols[k]
+        X = model.symbols_at(col_j[:nc], col_r[:nc])
+        arr = ca.vertcat(*levels[: k + 1])
+        at = PointFunction(model, ca.jacobian(arr, ca.vertcat(X, X_s)))  # made once
+        tgt = np.array(target[:nc], dtype=bool)
+        if k == 0 or pt.status is None:
+            at_random = at.dense(pt)
+        else:
+            if state["rnd"] is None:
+                state["rnd"] = pt.random_copy()
+            at_random = at.dense(state["rnd"])
+        points, state["other"] = _array_points(pt, arr, state["other"])
+        r_all = r_rest = -1
+        fulls = []
+        for q in points:
+            full = _vanishing_removed_dense(at.dense(q), at_random)
+            _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
+                                                          r // len(rows)))
+            jac = full[:, :nc]
             r_all = max(r_all, numeric_rank(jac)[0])
             r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
-            r_full = max(r_full, numeric_rank(full)[0] if len(state_j) else 0)
+            fulls.append(full)
+        return r_all, r_rest, fulls
+
+    if top_first and soft and max_index > 0:
+        for k in range(1, max_index + 1):
+            if too_long(k):
+                return None
+            grow(k)
+        r_all, r_rest, _ = test(max_index)
+        if r_all - r_rest != n:
+            return None  # not determined at the top level: at no level below either
+    ranks: list[tuple[int, int, int]] = []
+    for k in range(max_index + 1):
+        if k >= len(levels):
+            if too_long(k):
+                return None
+            grow(k)
+        elif k == 0 and too_long(0):
+            return None
+        r_all, r_rest, fulls = test(k)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
+            r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0
             constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
@@ -529,14 +584,20 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     )
 
 
-def _array_points(pt: _Point, arr: ca.SX) -> list[_Point]:
-    """Two points on ``arr = 0`` (``pt`` itself, moved, and a sibling), or ``[pt]`` as it is
-    when no consistent point is found (then ``pt.status`` says so)."""
-    st = consistent_point(pt, arr)
+def _array_points(pt: _Point, arr: ca.SX, other: _Point | None = None
+                  ) -> tuple[list[_Point], _Point | None]:
+    """Two points on ``arr = 0`` (``pt`` itself, moved, and ``other``: a sibling, or the
+    given one moved, with ``pt``'s time and inputs), or ``[pt]`` as it is when no consistent
+    point is found (then ``pt.status`` says so). Returns the points and ``other``."""
+    cache: dict = {}  # the functions of the iteration, made once for both points
+    st = consistent_point(pt, arr, cache=cache)
     if not st.consistent:
-        return [pt]
-    other = pt.sibling(1)
-    return [pt, other] if consistent_point(other, arr).consistent else [pt]
+        return [pt], other
+    if other is None:
+        other = pt.sibling(1)
+    else:
+        other.hold_from(pt)
+    return ([pt, other] if consistent_point(other, arr, cache=cache).consistent else [pt]), other
 
 
 # ----------------------------------------------------------------------------- analyze
@@ -669,31 +730,61 @@ def _vanishing_removed(at_consistent: sp.spmatrix, at_random: sp.spmatrix) -> sp
     return c
 
 
+def _vanishing_removed_dense(at_consistent: np.ndarray, at_random: np.ndarray) -> np.ndarray:
+    """:func:`_vanishing_removed` for dense matrices of the same expression."""
+    c = np.array(at_consistent, dtype=float)
+    tiny = (c != 0) & (np.abs(c) <= VANISH * np.abs(at_random))
+    c[tiny] = 0.0
+    return c
+
+
+class _JacobianAt:
+    """The entries ``dF_rows[k] / d x_cols[k]^(orders[k])`` as one CasADi function (made once,
+    evaluated at several points): ``jac(pt)`` is the numeric sparse matrix; raises
+    :class:`_NonFinite` naming the equations with NaN or inf entries."""
+
+    def __init__(self, model: Model, rows, cols, orders) -> None:
+        self.model = model
+        self.rows, self.cols = np.asarray(rows), np.asarray(cols)
+        F = model.residual
+        th = model.t.element_hash()
+        parts, take = [], []
+        nnz = 0
+        for order in np.unique(orders):
+            sel = np.nonzero(orders == order)[0]
+            cols_k = np.unique(self.cols[sel])
+            J = ca.jacobian(F, model.symbols(cols_k, int(order)))
+            r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
+            pos = {(a, int(cols_k[b])): nnz + k for k, (a, b) in enumerate(zip(r, cc))}
+            take.append((sel, np.array([pos.get((int(self.rows[q]), int(self.cols[q])), -1)
+                                        for q in sel], dtype=np.int64)))
+            parts.append(J.nz[:] if J.nnz() else ca.SX(0, 1))
+            nnz += J.nnz()
+        expr = ca.vertcat(*parts) if parts else ca.SX(0, 1)
+        self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
+        self.f = FastFunction(ca.Function("sparse_jacobian", [model.t, S], [expr]))
+        self.take = take
+        self.n = len(self.rows)
+
+    def __call__(self, pt: _Point) -> sp.csr_matrix:
+        model = self.model
+        nz = self.f(pt.t, pt.evaluate(self.syms))[0]
+        data = np.zeros(self.n)
+        for sel, idx in self.take:
+            data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)
+        bad = ~np.isfinite(data)
+        if np.any(bad):
+            names = model.equation_names
+            raise _NonFinite([names[i] for i in sorted(set(self.rows[bad].tolist()))])
+        return sp.csr_matrix((data, (self.rows, self.cols)),
+                             shape=(model.n_equations, model.n_unknowns))
+
+
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
     """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
-    n = model.n_unknowns
-    data = np.zeros(len(rows))
-    F = model.residual
-    th = model.t.element_hash()
-    for order in np.unique(orders):
-        sel = np.nonzero(orders == order)[0]
-        cols_k = np.unique(cols[sel])
-        X = model.symbols(cols_k, int(order))
-        J = ca.jacobian(F, X)
-        syms = [s for s in ca.symvar(J) if s.element_hash() != th]
-        f = ca.Function("sparse_jacobian", [model.t, ca.vertcat(*syms)], [J])
-        val = ca.DM(f(pt.t, pt.evaluate(syms)))
-        r, cc = val.sparsity().get_triplet()
-        pos = {(a, int(cols_k[b])): k for k, (a, b) in enumerate(zip(r, cc))}
-        nz = np.asarray(val.nonzeros())
-        idx = np.array([pos.get((int(rows[s]), int(cols[s])), -1) for s in sel], dtype=np.int64)
-        data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if len(nz) else 0.0, 0.0)
-    bad = ~np.isfinite(data)
-    if np.any(bad):
-        names = model.equation_names
-        raise _NonFinite([names[i] for i in sorted(set(np.asarray(rows)[bad].tolist()))])
-    return sp.csr_matrix((data, (rows, cols)), shape=(model.n_equations, n))
+    return _JacobianAt(model, rows, cols, orders)(pt)
 
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
@@ -759,7 +850,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     inc = model.incidence()
     n = inc.n_unknowns
     try:
-        sig = sigma_method(n, inc.rows, inc.cols, inc.vals)
+        sig = model.sigma()
     except NoTransversal:  # validate() guarantees a matching exists; keep a clear message
         raise ModelError(f"model {model.name!r} has no transversal (structurally singular)") from None
     c, d = sig.c, sig.d
@@ -777,10 +868,12 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 
     eq_lab, unk_lab = _components(inc)
 
+    jac_at = _JacobianAt(model, jrows, jcols, jvals)  # made once for every test point
+
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
         #    (the rank there is the generic one), so structural analysis fails for sure
-        jac = _sparse_jacobian(model, jrows, jcols, jvals, pt)
+        jac = jac_at(pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
         checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
@@ -793,7 +886,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt), jac)
+            jac_c = _vanishing_removed(jac_at(pt), jac)
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -807,7 +900,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(_sparse_jacobian(model, jrows, jcols, jvals, pt2), jac)
+                jac2 = _vanishing_removed(jac_at(pt2), jac)
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
@@ -909,7 +1002,8 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
         if len(cols) > CONFIRM_LIMIT or len(cols) * nu > CONFIRM_ARRAY_LIMIT:
             return None
         try:
-            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True)
+            res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True,
+                                    top_first=True)
         except (ModelError, _NonFinite):
             res = None
         if res is None:

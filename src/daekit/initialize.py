@@ -65,6 +65,7 @@ import scipy
 import scipy.sparse as sp
 
 from .errors import InitializationError
+from .numerics import FastFunction
 from .threads import limit_blas_threads
 from .wording import count
 
@@ -153,10 +154,15 @@ class InitialValues:
         )
 
 
-def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, float]]:
+def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = None
+                 ) -> list[tuple[str, int, float]]:
     """(element name, row in the system's variable vector, value) for each element meant by
-    ``key``."""
+    ``key``; ``names_of``: a cache of the elements of each key already resolved."""
     from .model import NameNotFoundError, expand_name
+
+    elems = names_of.get(key) if names_of is not None and isinstance(key, str) else None
+    if elems is not None:
+        return _with_values(elems, key, val, what, row_of)
 
     pnames = list(getattr(r, "p_names", []) or [])
     if pnames and isinstance(key, str):
@@ -172,6 +178,14 @@ def _name_values(r, key: str, val, what: str, row_of) -> list[tuple[str, int, fl
         elems = expand_name(key, r.variables, "the model")
     except NameNotFoundError as exc:
         raise InitializationError(f"{what}: {exc}") from None
+    if names_of is not None:
+        names_of[key] = elems
+    return _with_values(elems, key, val, what, row_of)
+
+
+def _with_values(elems: list[str], key: str, val, what: str, row_of
+                 ) -> list[tuple[str, int, float]]:
+    """The values ``val`` given for ``key`` (elements ``elems``), checked."""
     try:
         arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
     except (TypeError, ValueError):
@@ -227,9 +241,13 @@ class _SystemCache:
         self.core = core
         Jcore = ca.jacobian(core, w)
         self.Jz = Jcore[: int(self.alg.numel()), nx:]  # d alg / d z (for settle)
-        self.core_fun = ca.Function("core", self.args, [core, Jcore])
-        self.core_ccs = _ccs(self.core_fun.sparsity_out(1))
-        self.v_fun = ca.Function("values", self.args, [self.V])
+        self.core_fun = FastFunction(ca.Function("core", self.args, [core, Jcore]))
+        self.core_ccs = _ccs(self.core_fun.f.sparsity_out(1))
+        self.v_fun = FastFunction(ca.Function("values", self.args, [self.V]))
+        # per set of used rows (a call's fixed values and guesses): their values' Jacobian and
+        # Hessian functions (the names a sweep fixes are the same in every sample)
+        self.used_funs: dict[tuple, tuple] = {}
+        self.curved_funs: dict[tuple, tuple] = {}
         # rows of V that are plain symbols: hash (two names of one quantity) and w position,
         # found for the rows that fixed values and guesses use, on first use (-2: not yet)
         nv = int(self.V.numel())
@@ -240,6 +258,8 @@ class _SystemCache:
         self.settle = {}
         self.hess: dict = {}
         self.zdep = None
+        self.default_inputs = None  # the InputSignal of inputs=None
+        self.names_of: dict = {}  # a fixed/guessed key -> its elements and rows
 
     def describe(self, rows: np.ndarray) -> None:
         """Fill ``sym_hash``, ``w_pos`` and ``elems`` for ``rows`` (one slice of ``V``)."""
@@ -268,8 +288,29 @@ class _SystemCache:
             y = ca.SX.sym("y", expr.numel())
             f = ca.Function(f"hess_{part}", [*self.args, y],
                             [ca.hessian(ca.dot(y, expr), self.w)[0]])
-            self.hess[part] = (f, _ccs(f.sparsity_out(0)))
+            self.hess[part] = (FastFunction(f), _ccs(f.sparsity_out(0)))
         return self.hess[part]
+
+    def used_values(self, rows: np.ndarray):
+        """``(function, ccs)``: the values of the rows ``rows`` of ``V`` and their Jacobian
+        in ``w``; made once per set of rows."""
+        key = tuple(rows.tolist())
+        if key not in self.used_funs:
+            Ve = self.V[list(key)]
+            f = ca.Function("used_values", self.args, [Ve, ca.jacobian(Ve, self.w)])
+            self.used_funs[key] = (FastFunction(f), _ccs(f.sparsity_out(1)))
+        return self.used_funs[key]
+
+    def curved_hessian(self, rows: np.ndarray):
+        """``(function, ccs)``: the Hessian in ``w`` of ``yv^T V[rows]``; made once per set of
+        rows."""
+        key = tuple(rows.tolist())
+        if key not in self.curved_funs:
+            yv = ca.SX.sym("yv", len(key))
+            Vc = self.V[list(key)]
+            f = ca.Function("hess_values", [*self.args, yv], [ca.hessian(ca.dot(yv, Vc), self.w)[0]])
+            self.curved_funs[key] = (FastFunction(f), _ccs(f.sparsity_out(0)))
+        return self.curved_funs[key]
 
     def z_dependent(self, nx: int) -> tuple[bool, np.ndarray]:
         """Whether the invariants depend on ``z``, and which rows of ``V`` do."""
@@ -386,10 +427,15 @@ def initialize(
     nx, nz = r.nx, r.nz
     n = nx + nz
     pv = resolve_params(r, params)
-    sig = InputSignal(r, inputs)
+    sc = _system_cache(r)
+    if inputs:
+        sig = InputSignal(r, inputs)
+    else:  # the default inputs (zero) depend on the system only: made once
+        if sc.default_inputs is None:
+            sc.default_inputs = InputSignal(r, None)
+        sig = sc.default_inputs
     u0 = sig.value(t0)
 
-    sc = _system_cache(r)
     args = (t0, u0, pv)
 
     for what, given in (("fixed", fixed), ("guess", guess)):
@@ -400,10 +446,10 @@ def initialize(
             )
     fixed_items: list[tuple[str, int, float]] = []
     for k, v in (fixed or {}).items():
-        fixed_items += _name_values(r, k, v, "fixed", sc.row_of)
+        fixed_items += _name_values(r, k, v, "fixed", sc.row_of, sc.names_of)
     guess_items: list[tuple[str, int, float]] = []
     for k, v in (guess or {}).items():
-        guess_items += _name_values(r, k, v, "guess", sc.row_of)
+        guess_items += _name_values(r, k, v, "guess", sc.row_of, sc.names_of)
     fixed_names = [f[0] for f in fixed_items]
     dup = {nm for nm, c in Counter(fixed_names).items() if c > 1}
     if dup:
@@ -452,9 +498,7 @@ def initialize(
     S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
                            shape=(used.size, n))
     if expr_k.size:
-        Ve = sc.V[used[expr_k].tolist()]
-        used_fun = ca.Function("used_values", sc.args, [Ve, ca.jacobian(Ve, sc.w)])
-        used_ccs = _ccs(used_fun.sparsity_out(1))
+        used_fun, used_ccs = sc.used_values(used[expr_k])
         P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
                                shape=(used.size, expr_k.size))
 
@@ -466,13 +510,13 @@ def initialize(
     def values_and_jac(wv, jac: bool = True):
         """All named values at ``wv``, and the Jacobian of the used rows (CSR, or dense on
         the dense path)."""
-        Vv = np.asarray(sc.v_fun(wv, *args), dtype=float).ravel()
+        Vv = sc.v_fun(wv, *args)[0]
         if not jac:
             return Vv, None
         if expr_k.size:
             _, Je = used_fun(wv, *args)
             if not use_sparse:
-                return Vv, S_unit + P_expr @ np.asarray(Je.full(), dtype=float)
+                return Vv, S_unit + P_expr @ _to_dense(Je, used_ccs)
             return Vv, (S_unit + P_expr @ _to_csc(Je, used_ccs)).tocsr()
         return Vv, S_unit
 
@@ -513,10 +557,10 @@ def initialize(
     def hval(wv):
         c, Jc = sc.core_fun(wv, *args)
         Vv, JU = values_and_jac(wv)
-        hv = np.concatenate([np.asarray(c, dtype=float).ravel(), Vv[fix_idx] - fix_val])
+        hv = np.concatenate([c, Vv[fix_idx] - fix_val])
         if use_sparse:
             return hv, sp.vstack([_to_csc(Jc, sc.core_ccs), JU[fix_k]], format="csc")
-        return hv, np.vstack([np.asarray(Jc.full(), dtype=float), JU[fix_k]])
+        return hv, np.vstack([_to_dense(Jc, sc.core_ccs), JU[fix_k]])
 
     def jac_finite(J) -> bool:
         return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
@@ -535,7 +579,6 @@ def initialize(
     curved = used[sc.sym_hash[used] == -1] if used.size else used
     inv_z, v_z = sc.z_dependent(nx)
     with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
-    extra = {}
     decoupled = bool(nz) and n_alg == nz and not with_alg
 
     def gfun_x(_wx):
@@ -553,26 +596,21 @@ def initialize(
         diverges where the constraints are curved and the guesses off them (a 200-link chain
         from 1 cm off: the rods' multipliers are large), with it the iteration is Newton's on
         the KKT conditions."""
-        H = sp.csc_matrix((n, n))
+        conv = _to_csc if use_sparse else _to_dense
+        H = sp.csc_matrix((n, n)) if use_sparse else np.zeros((n, n))
         if n_inv:
             f, ccs = sc.hessian("inv")
-            H = H + _to_csc(f(wv, *args, y[n_alg:n_alg + n_inv]), ccs)
+            H = H + conv(f(wv, *args, y[n_alg:n_alg + n_inv])[0], ccs)
         if with_alg and n_alg:
             f, ccs = sc.hessian("alg")
-            H = H + _to_csc(f(wv, *args, y[:n_alg]), ccs)
+            H = H + conv(f(wv, *args, y[:n_alg])[0], ccs)
         if curved.size:
-            if "f" not in extra:
-                yv = ca.SX.sym("yv", curved.size)
-                Vc = sc.V[curved.tolist()]
-                f = ca.Function("hess_values", [*sc.args, yv],
-                                [ca.hessian(ca.dot(yv, Vc), sc.w)[0]])
-                extra["f"], extra["ccs"] = f, _ccs(f.sparsity_out(0))
+            f, ccs = sc.curved_hessian(curved)
             yv = np.zeros(int(sc.V.numel()))
             np.add.at(yv, fix_idx, y[n_alg + n_inv:])
             np.add.at(yv, g_idx, values_and_jac(wv, False)[0][g_idx] - gval)
-            H = H + _to_csc(extra["f"](wv, *args, yv[curved]), extra["ccs"])
-        H = H.tocsc()
-        return H if use_sparse else H.toarray()
+            H = H + conv(f(wv, *args, yv[curved])[0], ccs)
+        return H.tocsc() if use_sparse else H
 
     def gauss_newton(wv):
         """Damped (Gauss-)Newton from ``wv``: (point, residual, Jacobian, converged, iterations).
@@ -702,7 +740,8 @@ def initialize(
 
     determined, notes = [], []
     if not use_sparse and fixed_items:
-        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names),
+        pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
+        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names), pinned,
                                         {nm for nm, _, _ in guess_items})
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
@@ -724,12 +763,20 @@ def _other_sign(wv, i: int, hval, scale: float, iters: int = 12) -> bool:
     values re-solved by a few minimum-norm Gauss--Newton steps from the flipped point)."""
     w = wv.copy()
     w[i] = -wv[i]
+    last, stalled = np.inf, 0
     for _ in range(iters):
         hv, J = hval(w)
         if not (np.all(np.isfinite(hv)) and np.all(np.isfinite(J))):
             return False
         if np.max(np.abs(hv), initial=0.0) <= 1e-10 * scale:
             return True
+        # full minimum-norm steps that leave the residual where it was twice running: the
+        # rest cannot hold with the flipped value (a fixed value of that very quantity)
+        nh = float(np.linalg.norm(hv))
+        stalled = stalled + 1 if nh >= (1 - 1e-3) * last else 0
+        if stalled >= 2:
+            return False
+        last = nh
         J = np.array(J, dtype=float)
         J[:, i] = 0.0  # w[i] stays at the flipped value
         d = np.linalg.lstsq(J, -hv, rcond=1e-12)[0]
@@ -738,11 +785,13 @@ def _other_sign(wv, i: int, hval, scale: float, iters: int = 12) -> bool:
     return False
 
 
-def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
+def _determined(r, wv, J, hval, scale, fixed: set[str], pinned: set[int], guessed: set[str]):
     """States (and dummy states) not fixed but locally determined: their unit vectors are
     orthogonal to the null space of the Jacobian of ``[alg; invariants; fixed]``. A determined
     value whose negative satisfies the equations too (a quaternion component from
-    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it."""
+    ``|q| = 1``) is noted: the sign of the guess (or of the start) decided it. ``pinned``:
+    positions in ``w`` that a fixed value holds directly (under another name, e.g. ``v[0]``
+    by ``der(p)[0]``): their other sign breaks that fixed value, no search needed."""
     J = np.asarray(J, dtype=float)
     if J.size == 0:
         return [], []
@@ -759,7 +808,7 @@ def _determined(r, wv, J, hval, scale, fixed: set[str], guessed: set[str]):
             continue
         determined.append(nm)
         v = float(wv[i])
-        if abs(v) <= 1e-9 * scale:
+        if abs(v) <= 1e-9 * scale or i in pinned:
             continue
         if _other_sign(wv, i, hval, scale):
             whose = "the guess" if nm in guessed else "the starting point"
@@ -851,17 +900,17 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
     converge, ``w`` is returned unchanged (the joint step stands)."""
     zs = w[nx:]
     affine = not ca.depends_on(Jz, zs)
-    afun = ca.Function("alg_z", list(args), [alg, Jz])
-    ccs = _ccs(afun.sparsity_out(1))
+    afun = FastFunction(ca.Function("alg_z", list(args), [alg, Jz]))
+    ccs = _ccs(afun.f.sparsity_out(1))
     count = 1 if affine else iters
+    scalar = not sparse and int(zs.numel()) == 1 and int(alg.numel()) == 1
 
     def settle(wv: np.ndarray, vals) -> np.ndarray:
         w1 = np.array(wv, dtype=float)
         g0 = None
         for _ in range(count):
             g, A = afun(w1, *vals)
-            g = np.asarray(g, dtype=float).ravel()
-            A = _to_csc(A, ccs) if sparse else np.asarray(A.full(), dtype=float)
+            A = _to_csc(A, ccs) if sparse else _to_dense(A, ccs)
             if not (np.all(np.isfinite(g)) and np.all(np.isfinite(A.data if sparse else A))):
                 return wv
             ng = float(np.max(np.abs(g), initial=0.0))
@@ -869,6 +918,17 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
+            if scalar:  # one algebraic unknown: no LAPACK call needed
+                a = float(A[0, 0])
+                if a == 0.0:
+                    return wv  # z is not determined by alg here (singular)
+                if ng == 0.0:
+                    break
+                dz = np.array([-g[0] / a])
+                w1[nx:] += dz
+                if abs(dz[0]) <= 1e-13 * (1.0 + abs(w1[nx])):
+                    break
+                continue
             if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
                 return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
@@ -893,17 +953,29 @@ def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
     return settle
 
 
-def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int], np.ndarray]:
+    """The CCS pattern of a CasADi output: ``(colind, row, shape, col)`` (``col``: the column
+    of each nonzero)."""
     colind, row = pattern.get_ccs()
-    return (np.asarray(colind, dtype=np.int64), np.asarray(row, dtype=np.int64),
-            (pattern.size1(), pattern.size2()))
+    colind = np.asarray(colind, dtype=np.int64)
+    col = np.repeat(np.arange(pattern.size2(), dtype=np.int64), np.diff(colind))
+    return (colind, np.asarray(row, dtype=np.int64), (pattern.size1(), pattern.size2()), col)
 
 
-def _to_csc(M: ca.DM, ccs) -> sp.csc_matrix:
-    """A CasADi DM with the CCS pattern ``ccs`` (from :func:`_ccs`) as a SciPy CSC matrix."""
-    colind, row, shape = ccs
-    data = np.asarray(M.nonzeros(), dtype=float)
+def _to_csc(M, ccs) -> sp.csc_matrix:
+    """The nonzeros ``M`` (a NumPy vector, or a CasADi DM) of the CCS pattern ``ccs`` (from
+    :func:`_ccs`) as a SciPy CSC matrix."""
+    colind, row, shape, _ = ccs
+    data = np.asarray(M.nonzeros() if isinstance(M, ca.DM) else M, dtype=float).ravel()
     return sp.csc_matrix((data, row, colind), shape=shape)
+
+
+def _to_dense(M, ccs) -> np.ndarray:
+    """:func:`_to_csc` as a dense NumPy array."""
+    _, row, shape, col = ccs
+    out = np.zeros(shape)
+    out[row, col] = np.asarray(M.nonzeros() if isinstance(M, ca.DM) else M, dtype=float).ravel()
+    return out
 
 
 def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
@@ -1043,31 +1115,46 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
     ``1e-10`` of the terms that make them; the invariants of a dummy-derivative system, which
     its algebraic equations contain, vanish entirely) are dropped. The number of dependent
     states is the scale-invariant rank (:func:`daekit.numerics.rank`) of ``Jc`` less that of
-    its ``z`` columns; a column-pivoted QR of the equilibrated ``J`` picks them (the pivots);
+    its ``z`` columns (where ``d alg / d z`` is square and nonsingular: the rank of ``J``
+    itself); a column-pivoted QR of the equilibrated ``J`` picks them (the pivots);
     the remaining states are free. The user's fixed states are weighted down so that they are
     reported free whenever they can be.
     """
-    from .numerics import equilibrate, rank
+    from .numerics import RANK_RTOL, equilibrate, rank, rank_info
 
     nz = Jc.shape[1] - nx
     n_alg = r.nz if r.alg.numel() == r.nz else int(r.alg.numel())
     Ja, Ji = Jc[:n_alg], Jc[n_alg:]
     if Ji.shape[0] == 0 or nx == 0:
         return set(r.x_names)
+    regular = False  # d alg / d z square and nonsingular (scale-invariant test)
     if nz and n_alg:
         dr, dc = equilibrate(Ja[:, nx:])
-        Y = dc[:, None] * np.linalg.lstsq(Ja[:, nx:] * dr[:, None] * dc[None, :],
-                                          Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
+        Bz = Ja[:, nx:] * dr[:, None] * dc[None, :]
+        if n_alg == nz:
+            sv = np.linalg.svd(Bz, compute_uv=False)
+            regular = bool(sv.size and sv[-1] > RANK_RTOL * nz * sv[0])
+        if regular:
+            Y = dc[:, None] * np.linalg.solve(Bz, Ja[:, :nx] * dr[:, None])
+        else:
+            Y = dc[:, None] * np.linalg.lstsq(Bz, Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
         T = Ji[:, nx:] @ Y
         Jred = Ji[:, :nx] - T
         Jred[np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T))] = 0.0
     else:
         Jred = Ji[:, :nx].copy()
-    k = rank(Jc) - (rank(Jc[:, nx:]) if nz else 0)
+    if regular or not nz:
+        # rank Jc - rank Jc_z = rank of the Schur complement Jred (z eliminated exactly)
+        info = rank_info(Jred)
+        k, dr, dc = info.rank, info.dr, info.dc
+    else:
+        k = rank(Jc) - (rank(Jc[:, nx:]) if nz else 0)
+        dr = dc = None
     k = max(0, min(k, nx))
     if k == 0:
         return set(r.x_names)
-    dr, dc = equilibrate(Jred)
+    if dr is None:
+        dr, dc = equilibrate(Jred)
     colw = np.array([1e-2 if nm in fixed else 1.0 for nm in r.x_names])
     _, _, piv = scipy.linalg.qr(Jred * dr[:, None] * dc[None, :] * colw[None, :],
                                 mode="economic", pivoting=True)

@@ -809,6 +809,21 @@ class Model:
         self._cache["inc"] = inc
         return inc
 
+    def sigma(self):
+        """Pryce's Sigma-method on :meth:`incidence` (:func:`daekit.structure.sigma_method`),
+        computed once until the model changes (analysis and reduction both need it).
+
+        >>> import daekit as dk
+        >>> dk.examples.l3().sigma().index
+        3
+        """
+        if "sigma" not in self._cache:
+            from .structure import sigma_method
+
+            inc = self.incidence()
+            self._cache["sigma"] = sigma_method(inc.n_equations, inc.rows, inc.cols, inc.vals)
+        return self._cache["sigma"]
+
     @staticmethod
     def require(obj, where: str) -> Model:
         """``obj`` if it is a Model, its ``.model()`` if it is a
@@ -833,6 +848,8 @@ class Model:
         """
         from .structure import dulmage_mendelsohn
 
+        if self._cache.get("valid"):  # checked already, and the model has not changed since
+            return
         if not self.equations:
             raise ModelError(f"model {self.name!r} has no equations; add them with m.equation(...)")
         if not self.unknown_variables:
@@ -851,6 +868,7 @@ class Model:
         eq_names = self.equation_names
         dm = dulmage_mendelsohn(inc.n_equations, inc.n_unknowns, inc.rows, inc.cols)
         if dm.is_square_nonsingular:
+            self._cache["valid"] = True
             return
         over_e = [eq_names[i] for i in dm.over_rows]
         over_v = [names[j] for j in dm.over_cols]

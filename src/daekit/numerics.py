@@ -36,6 +36,7 @@ Example
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import casadi as ca
@@ -44,7 +45,7 @@ import scipy.sparse as sp
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "redundant_rows"]
+           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "FastFunction", "redundant_rows"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -57,37 +58,33 @@ RUIZ_ITERATIONS = 30
 NOISE = 1e-13
 #: Entries below this fraction of their row's largest (unscaled) count as zero for the scaling.
 ROW_NOISE = 1e-20
+#: Matrices with at most this many entries are equilibrated as dense arrays (also when given
+#: sparse): the same arithmetic, without SciPy's per-call overhead.
+DENSE_EQUILIBRATE = 40000
+#: Curtis--Reid's normal equations up to this size (rows plus columns) are solved densely.
+DENSE_CR = 400
 
 
 def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:
+    """``2**-round(log2(mx) / 2)`` elementwise (1 where ``mx`` is 0): the power of two
+    nearest to ``1 / sqrt(mx)``; exactly 1 when ``mx`` lies in ``[1/2, 2]``."""
     mx = np.asarray(mx, dtype=float).ravel()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        e = np.where(mx > 0, -np.round(0.5 * np.log2(np.where(mx > 0, mx, 1.0))), 0.0)
-    return np.exp2(e)
+    e = np.log2(mx, out=np.zeros(mx.shape), where=mx > 0)
+    return np.exp2(-np.round(0.5 * e))
 
 
 def _curtis_reid(B) -> tuple[np.ndarray, np.ndarray]:
     """Log2 row and column factors minimizing ``sum (log2|a_ij| + r_i + c_j)^2`` over the
     nonzeros (Curtis & Reid, "On the automatic scaling of matrices for Gaussian
     elimination", J. Inst. Maths Applics 10, 1972): a linear least-squares problem whose
-    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all."""
+    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all. Its normal
+    equations ``[[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[...]`` (``P``
+    the pattern) are singular along ``(1, -1)`` per connected component: a tiny ridge picks
+    the least-norm solution without changing the scaled matrix (see :func:`_curtis_reid_log`)."""
     C = sp.coo_matrix(B)
     keep = C.data > 0
-    rows, cols, vals = C.row[keep], C.col[keep], np.log2(C.data[keep])
-    m, n = C.shape
-    k = rows.size
-    if k == 0:
-        return np.zeros(m), np.zeros(n)
-    # normal equations: [[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[P 1 ...]
-    # (P the pattern), singular along (1, -1) per connected component: a tiny ridge picks the
-    # least-norm solution without changing the scaled matrix
-    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
-    rc = np.bincount(rows, minlength=m).astype(float)
-    cc = np.bincount(cols, minlength=n).astype(float)
-    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
-    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-    sol = sp.linalg.spsolve(K, b)
-    return sol[:m], sol[m:]
+    return _curtis_reid_log(C.shape[0], C.shape[1], C.row[keep], C.col[keep],
+                            np.log2(C.data[keep]))
 
 
 def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
@@ -108,6 +105,10 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     True
     """
     issparse = sp.issparse(A)
+    if issparse and A.shape[0] * A.shape[1] <= DENSE_EQUILIBRATE:
+        A, issparse = A.toarray(), False
+    if not issparse:
+        return _equilibrate_dense(A)
     if issparse:
         B = abs(sp.csr_matrix(A, dtype=float))
         B.data[~np.isfinite(B.data)] = 0.0
@@ -144,8 +145,80 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     return _ruiz(B, dr, dc, issparse)
 
 
+def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equilibrate` of a dense matrix, in the exponents: with ``L = log2 |A|`` the
+    scaled entries are ``L + e_r + e_c`` (integer exponents, added exactly), so that each
+    Ruiz sweep is a few whole-array operations and no product is formed; the factors are
+    those of the same iteration on ``|A|`` itself."""
+    B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
+    m, n = B.shape
+    if m == 0 or n == 0:
+        return np.ones(m), np.ones(n)
+    ok = np.isfinite(B)
+    if not ok.all():
+        B = np.where(ok, B, 0.0)
+    # entries below ROW_NOISE of their row's largest: rounding residue of exact zeros
+    B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
+    nz = B > 0
+    L = np.log2(B, out=np.full(B.shape, -np.inf), where=nz)
+    e = _ruiz_log(L, np.zeros(m), np.zeros(n))
+    # entries below NOISE of both their row's and column's largest after Ruiz: ignored by
+    # Curtis--Reid (see equilibrate)
+    keep = nz & (L + e[0][:, None] + e[1][None, :] > _LOG2_NOISE)
+    rows, cols = np.nonzero(keep)
+    lr, lc = _curtis_reid_log(m, n, rows, cols, L[rows, cols])
+    er, ec = _ruiz_log(L, np.round(lr), np.round(lc))
+    return np.exp2(er), np.exp2(ec)
+
+
+_LOG2_NOISE = float(np.log2(NOISE))
+
+
+def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
+    """Ruiz's iteration (see :func:`_ruiz`) on the exponents: ``L`` the log2 magnitudes
+    (``-inf`` for zeros), ``er``, ``ec`` the exponents of the row and column factors."""
+    m = L.shape[0]
+    for _ in range(RUIZ_ITERATIONS):
+        S = L + er[:, None] + ec[None, :]
+        mx = np.concatenate([S.max(axis=1), S.max(axis=0)])
+        # the factor 2**-round(log2(max) / 2); zero rows and columns (-inf) keep factor 1
+        f = -np.round(0.5 * mx)
+        f[~np.isfinite(f)] = 0.0
+        if not f.any():
+            break
+        er = er + f[:m]
+        ec = ec + f[m:]
+    return er, ec
+
+
+def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_curtis_reid` from the nonzeros' positions and log2 magnitudes."""
+    k = rows.size
+    if k == 0:
+        return np.zeros(m), np.zeros(n)
+    if m + n <= DENSE_CR:
+        K = np.zeros((m + n, m + n))
+        K[rows, m + cols] = 1.0
+        K[m + cols, rows] = 1.0
+        idx = np.arange(m + n)
+        K[idx, idx] = np.concatenate([np.bincount(rows, minlength=m),
+                                      np.bincount(cols, minlength=n)]) + 1e-10
+        b = -np.concatenate([np.bincount(rows, vals, minlength=m),
+                             np.bincount(cols, vals, minlength=n)])
+        sol = np.linalg.solve(K, b)
+        return sol[:m], sol[m:]
+    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
+    rc = np.bincount(rows, minlength=m).astype(float)
+    cc = np.bincount(cols, minlength=n).astype(float)
+    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
+    sol = sp.linalg.spsolve(K, b)
+    return sol[:m], sol[m:]
+
+
 def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:
-    """Ruiz's iteration in the max norm from the factors ``dr``, ``dc``."""
+    """Ruiz's iteration in the max norm from the factors ``dr``, ``dc``: until every nonzero
+    row's and column's largest entry lies in ``[1/2, 2]`` (then every factor update is 1)."""
     for _ in range(RUIZ_ITERATIONS):
         if issparse:
             S = sp.diags(dr) @ B @ sp.diags(dc)
@@ -154,12 +227,11 @@ def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:
         else:
             S = B * dr[:, None] * dc[None, :]
             rmax, cmax = S.max(axis=1), S.max(axis=0)
-        ok_r = (rmax == 0) | ((rmax >= 0.5) & (rmax <= 2.0))
-        ok_c = (cmax == 0) | ((cmax >= 0.5) & (cmax <= 2.0))
-        if ok_r.all() and ok_c.all():
+        fr, fc = _pow2_inv_sqrt(rmax), _pow2_inv_sqrt(cmax)
+        if (fr == 1.0).all() and (fc == 1.0).all():
             break
-        dr = dr * _pow2_inv_sqrt(rmax)
-        dc = dc * _pow2_inv_sqrt(cmax)
+        dr = dr * fr
+        dc = dc * fc
     return dr, dc
 
 
@@ -388,6 +460,55 @@ def to_scipy(M) -> sp.csc_matrix:
     )
 
 
+class FastFunction:
+    """A CasADi ``Function`` called through its raw buffers (``Function.buffer()``): the
+    inputs are copied into NumPy arrays CasADi reads in place, and the outputs (their
+    nonzeros, as dense vectors) come back as NumPy arrays. A call costs about a microsecond
+    where ``f(*args)`` with NumPy arguments costs 30-80 (SWIG's conversions to and from
+    ``DM``); for the many small evaluations of Gauss--Newton that is most of the time.
+    One buffer per thread, so that threads may share the object; copies and pickles rebuild
+    them.
+
+    Example
+    -------
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x", 2); t = ca.SX.sym("t")
+    >>> f = FastFunction(ca.Function("f", [t, x], [t * x, ca.sum1(x)]))
+    >>> [v.tolist() for v in f(2.0, [1.0, 3.0])]
+    [[2.0, 6.0], [4.0]]
+    """
+
+    def __init__(self, f: ca.Function) -> None:
+        self.f = f
+        self.n_in, self.n_out = f.n_in(), f.n_out()
+        self.sizes_in = [f.nnz_in(i) for i in range(self.n_in)]
+        self.sizes_out = [f.nnz_out(i) for i in range(self.n_out)]
+        self._local = threading.local()
+
+    def _buffers(self):
+        loc = self._local
+        if not hasattr(loc, "trigger"):
+            buf, trigger = self.f.buffer()
+            ins = [np.zeros(k) for k in self.sizes_in]
+            outs = [np.zeros(k) for k in self.sizes_out]
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))
+            for i, a in enumerate(outs):
+                buf.set_res(i, memoryview(a))
+            loc.buf, loc.trigger, loc.ins, loc.outs = buf, trigger, ins, outs
+        return loc
+
+    def __call__(self, *args) -> list[np.ndarray]:
+        loc = self._buffers()
+        for a, v in zip(loc.ins, args, strict=True):
+            a[:] = v
+        loc.trigger()
+        return [o.copy() for o in loc.outs]
+
+    def __reduce__(self):  # the buffers are per process and thread: rebuilt from f
+        return (FastFunction, (self.f,))
+
+
 class SparseFunction:
     """A CasADi function of one sparse matrix output, evaluated straight into SciPy CSR: the
     pattern is converted once, each call returns the nonzeros as one dense vector (much
@@ -410,7 +531,27 @@ class SparseFunction:
         self.indptr = np.asarray(colind, dtype=np.int64)
         self.indices = np.asarray(row, dtype=np.int64)
         self.f = ca.Function("sparse_f", list(inputs), [expr.nz[:] if expr.nnz() else ca.SX(0, 1)])
+        self.fast = FastFunction(self.f)
+
+    def values(self, *args) -> np.ndarray:
+        """The nonzeros (in CSC order of the expression)."""
+        return self.fast(*args)[0] if self.indices.size else np.zeros(0)
 
     def __call__(self, *args) -> sp.csr_matrix:
-        data = np.asarray(self.f(*args), dtype=float).ravel() if self.indices.size else np.zeros(0)
+        data = self.values(*args)
         return sp.csc_matrix((data, self.indices, self.indptr), shape=self.shape).tocsr()
+
+    def dense(self, *args) -> np.ndarray:
+        """The value as a dense NumPy array (for small matrices: no SciPy object made).
+
+        >>> import casadi as ca
+        >>> x = ca.SX.sym("x", 2)
+        >>> SparseFunction([x], ca.diag(x)).dense(np.array([1.0, 2.0])).tolist()
+        [[1.0, 0.0], [0.0, 2.0]]
+        """
+        out = np.zeros(self.shape)
+        if self.indices.size:
+            if not hasattr(self, "_cols"):
+                self._cols = np.repeat(np.arange(self.shape[1]), np.diff(self.indptr))
+            out[self.indices, self._cols] = self.values(*args)
+        return out

@@ -37,10 +37,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import ModelError
-from .numerics import SparseFunction, equilibrate, to_scipy
+from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
-__all__ = ["TestPoint", "PointStatus", "check_point", "make_consistent", "consistent_point",
+__all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
            "gauss_newton", "reduced_consistent_point", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
@@ -162,12 +162,41 @@ class TestPoint:
             self.values[s.element_hash()] = float(v)
 
     def sparse(self, expr: ca.SX) -> sp.csr_matrix:
-        """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix."""
-        th = self.model.t.element_hash()
-        syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
-        f = ca.Function("at_point", [self.model.t, ca.vertcat(*syms)], [expr])
-        val = ca.DM(f(self.t, self.evaluate(syms)))
-        return to_scipy(val).tocsr()
+        """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix
+        (for several points, make a :class:`PointFunction` once)."""
+        return PointFunction(self.model, expr).sparse(self)
+
+    def hold_from(self, other: TestPoint) -> None:
+        """Take ``other``'s values of the held symbols (time, parameters, inputs and their
+        derivatives) where it has them."""
+        self.t = other.t
+        for h in _fixed_kinds(self.model):
+            if h in other.values:
+                self.values[h] = other.values[h]
+
+
+class PointFunction:
+    """A (sparse) SX expression of a model's symbols, made into a function once and
+    evaluated at :class:`TestPoint` objects.
+
+    >>> import casadi as ca, daekit as dk
+    >>> m = dk.Model("m"); x = m.state("x")
+    >>> f = PointFunction(m, ca.vertcat(2 * x, 0))
+    >>> f.dense(TestPoint(m, {"x": 3.0})).tolist()
+    [[6.0], [0.0]]
+    """
+
+    def __init__(self, model, expr: ca.SX) -> None:
+        th = model.t.element_hash()
+        self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
+        self.f = SparseFunction([model.t, S], expr)
+
+    def sparse(self, pt: TestPoint) -> sp.csr_matrix:
+        return self.f(pt.t, pt.evaluate(self.syms))
+
+    def dense(self, pt: TestPoint) -> np.ndarray:
+        return self.f.dense(pt.t, pt.evaluate(self.syms))
 
 
 @dataclass
@@ -205,12 +234,14 @@ def _movable(model, syms) -> list:
 
 
 def make_consistent(pt: TestPoint, equations: ca.SX, max_iter: int = 60,
-                    tol: float = POINT_TOL) -> PointStatus:
+                    tol: float = POINT_TOL, cache: dict | None = None) -> PointStatus:
     """Move the unknowns of ``pt`` (not time, inputs or parameters) onto ``equations = 0``.
 
     Gauss--Newton with minimum-norm steps from the point's current values (:func:`gauss_newton`).
     On success the point's values are replaced by the solution; on failure they are left as
-    they were. Returns the :class:`PointStatus` (also stored as ``pt.status``).
+    they were. Returns the :class:`PointStatus` (also stored as ``pt.status``). ``cache``: a
+    dict kept by the caller for one ``equations`` (the same object each call): the CasADi
+    functions of the iteration are made once for all points solved with it.
 
     >>> import casadi as ca, daekit as dk
     >>> m = dk.Model("m"); x = m.state("x"); z = m.algebraic("z")
@@ -218,48 +249,70 @@ def make_consistent(pt: TestPoint, equations: ca.SX, max_iter: int = 60,
     >>> pt = TestPoint(m, None); make_consistent(pt, m.residual).consistent
     True
     """
-    G = ca.vec(ca.SX(equations))
     model = pt.model
-    syms = _movable(model, ca.symvar(G))
+    if cache is None:
+        cache = {}
+    if "G" not in cache:
+        G = ca.vec(ca.SX(equations))
+        cache["G"] = G
+        cache["syms"] = _movable(model, ca.symvar(G))
+    G, syms = cache["G"], cache["syms"]
     if pt.given and any(s.element_hash() in pt.given for s in syms):
         # the user's values are held; where they admit no consistent completion the point is
         # used as the user gave it (and the status says it is not consistent)
         held = [s for s in syms if s.element_hash() not in pt.given]
-        st = _solve(pt, G, held, max_iter, tol)
+        st = _solve(pt, G, held, max_iter, tol, cache)
         st.given = True
         pt.status = st
         return st
-    st = _solve(pt, G, syms, max_iter, tol)
+    st = _solve(pt, G, syms, max_iter, tol, cache)
     pt.status = st
     return st
 
 
-def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float) -> PointStatus:
+def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
+           cache: dict | None = None) -> PointStatus:
     """Gauss--Newton on ``G = 0`` in the symbols ``syms`` (the others held at their values)."""
     model = pt.model
-    moving = {s.element_hash() for s in syms}
-    fixed = [s for s in ca.symvar(G)
-             if s.element_hash() not in moving and s.element_hash() != model.t.element_hash()]
-    W = ca.vertcat(*syms) if syms else ca.SX(0, 1)
-    Fx = ca.vertcat(*fixed) if fixed else ca.SX(0, 1)
-    f = ca.Function("consistency", [model.t, Fx, W], [G])
-    fj = SparseFunction([model.t, Fx, W], ca.jacobian(G, W))
+    key = tuple(s.element_hash() for s in syms)
+    made = cache.get(key) if cache is not None else None
+    if made is None:
+        moving = set(key)
+        th = model.t.element_hash()
+        fixed = [s for s in ca.symvar(G) if s.element_hash() not in moving and s.element_hash() != th]
+        W = ca.vertcat(*syms) if syms else ca.SX(0, 1)
+        Fx = ca.vertcat(*fixed) if fixed else ca.SX(0, 1)
+        f = FastFunction(ca.Function("consistency", [model.t, Fx, W], [G]))
+        fj = SparseFunction([model.t, Fx, W], ca.jacobian(G, W))
+        made = (fixed, f, fj)
+        if cache is not None:
+            cache[key] = made
+    fixed, f, fj = made
     fv = pt.evaluate(fixed)
     w0 = pt.evaluate(syms)
 
     def fun(w):
-        return np.asarray(f(pt.t, fv, w), dtype=float).ravel()
+        return f(pt.t, fv, w)[0]
 
-    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter, jac=lambda w: fj(pt.t, fv, w))
+    if _is_dense(len(syms), G.numel()):
+        def jac(w):
+            return fj.dense(pt.t, fv, w)
+    else:
+        def jac(w):
+            return fj(pt.t, fv, w)
+
+    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter, jac=jac)
     if st.consistent:
         pt.assign(syms, w)
     return st
 
 
-def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3) -> PointStatus:
+def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
+                     cache: dict | None = None) -> PointStatus:
     """:func:`make_consistent` from ``pt``; where that fails, from up to ``starts - 1`` other
     random starts (same time and inputs), whose solution is then copied into ``pt``. The
-    returned status says whether a consistent point was found.
+    returned status says whether a consistent point was found. ``cache``: see
+    :func:`make_consistent`.
 
     >>> import casadi as ca, daekit as dk
     >>> m = dk.Model("m"); x = m.state("x")
@@ -267,11 +320,13 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3) -> PointS
     >>> pt = TestPoint(m, None); consistent_point(pt, m.residual).consistent
     True
     """
-    st = make_consistent(pt, equations)
+    if cache is None:
+        cache = {}
+    st = make_consistent(pt, equations, cache=cache)
     k = 1
     while not st.consistent and k < starts and not st.given:
         alt = pt.sibling(k)
-        st2 = make_consistent(alt, equations)
+        st2 = make_consistent(alt, equations, cache=cache)
         if st2.consistent:
             for h, v in alt.values.items():
                 pt.values[h] = v
@@ -303,20 +358,35 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     h = np.asarray(fun(w), dtype=float)
     if h.size == 0:
         return w, PointStatus(True, 0.0, 0)
+    n = w.size
+    dense = _is_dense(n, h.size)
+    if dense:
+        jac_sparse = jac
+
+        def jac(wv):
+            Jv = jac_sparse(wv)
+            return Jv.toarray() if sp.issparse(Jv) else np.asarray(Jv, dtype=float)
+
+        def scaled(Jv):
+            return Jv * dr[:, None] * dc[None, :]
+    else:
+        def scaled(Jv):
+            return sp.diags(dr) @ Jv @ sp.diags(dc)
     J = jac(w)
-    if not (np.all(np.isfinite(h)) and np.all(np.isfinite(J.data))):
+    Jdata = J if dense else J.data
+    if not (np.all(np.isfinite(h)) and np.all(np.isfinite(Jdata))):
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
-    n = w.size
+    inv_dc = 1.0 / dc
 
     def merit(hv):
         return np.abs(dr * hv)
 
     def level(wv):
-        return tol * (1.0 + float(np.max(np.abs(wv / dc)))) if n else tol
+        return tol * (1.0 + float(np.abs(wv * inv_dc).max())) if n else tol
 
     def finite(hv):
-        return bool(np.all(np.isfinite(hv)))
+        return bool(np.isfinite(hv).all())
 
     r = merit(h)
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
@@ -328,7 +398,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
                 if not (r.max() > 0 and n):
                     break
                 J = jac(w)
-                d = _min_norm_step(sp.diags(dr) @ J @ sp.diags(dc), dr * h)
+                d = _min_norm_step(scaled(J), dr * h)
                 if d is None or not np.all(np.isfinite(d)):
                     break
                 hn = fun(w + dc * d)
@@ -340,26 +410,27 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             break
         if it:
             J = jac(w)
-            if not np.all(np.isfinite(J.data)):
+            if not np.all(np.isfinite(J if dense else J.data)):
                 break
-        d = _min_norm_step(sp.diags(dr) @ J @ sp.diags(dc), dr * h)
-        if d is None or not np.all(np.isfinite(d)):
+        d = _min_norm_step(scaled(J), dr * h)
+        if d is None or not finite(d):
             break
-        size = float(np.max(np.abs(d))) if d.size else 0.0
+        size = float(np.abs(d).max()) if d.size else 0.0
         alpha = min(1.0, radius / size) if size > 0 else 1.0
-        norm0 = np.linalg.norm(r)
+        norm0 = float(np.sqrt(r @ r))
+        dw = dc * d
         for _ in range(30):
-            wn = w + alpha * dc * d
+            wn = w + alpha * dw
             hn = fun(wn)
             if finite(hn):
                 rn = merit(hn)
-                if np.linalg.norm(rn) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
+                if float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
                     break
             alpha *= 0.5
         else:
             break
         radius = 4.0 * alpha * size if alpha * size * 1.5 >= radius else max(alpha * size, 1e-8)
-        radius = max(radius, 1e-3 * (1.0 + float(np.max(np.abs(wn / dc)))))
+        radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
 
@@ -371,12 +442,17 @@ def _worst(h, dr) -> list[int]:
     return np.nonzero(r >= 1e-3 * top)[0].tolist() if top > 0 else []
 
 
-def _min_norm_step(J: sp.csr_matrix, h: np.ndarray) -> np.ndarray | None:
+def _is_dense(n: int, m: int) -> bool:
+    """Whether Gauss--Newton on ``m`` equations in ``n`` unknowns uses dense linear algebra."""
+    return n <= DENSE_UNKNOWNS and m <= 4 * DENSE_UNKNOWNS
+
+
+def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     """``d`` with ``J d ~ -h`` of least norm: ``d = -J^T (J J^T + mu I)^{-1} h`` with a tiny
     ``mu`` (redundant rows do no harm), dense SVD for small problems."""
     m, n = J.shape
-    if n <= DENSE_UNKNOWNS and m <= 4 * DENSE_UNKNOWNS:
-        A = J.toarray()
+    if _is_dense(n, m):
+        A = J.toarray() if sp.issparse(J) else J
         try:
             return -np.linalg.lstsq(A, h, rcond=1e-12)[0]
         except np.linalg.LinAlgError:
@@ -415,14 +491,15 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     G = ca.vertcat(ca.vec(r.alg), ca.vec(r.invariants) if r.invariants.numel() else ca.SX(0, 1))
     G = ca.substitute([G], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
                       [t_s, w, u_s, ca.DM(r.p_values)])[0]
-    f = ca.Function("g", [t_s, u_s, w], [G])
+    f = FastFunction(ca.Function("g", [t_s, u_s, w], [G]))
     fj = SparseFunction([t_s, u_s, w], ca.jacobian(G, w))
+    jac = fj.dense if _is_dense(n, G.numel()) else fj
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
         w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
-        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: np.asarray(f(tv, uv, x), dtype=float).ravel(),
-                              w0, jac=lambda x, tv=tv, uv=uv: fj(tv, uv, x))
+        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x)[0],
+                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x))
         if st.consistent:
             return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
     return None

@@ -82,13 +82,20 @@ def blas_threads(limit: int | None = None) -> Iterator[None]:
         return
     ctrl = _controller()
     _state["depth"] += 1
+    changed = []
     try:
-        if ctrl:
-            with ctrl.limit(limits=limit, user_api="blas"):
-                yield
-        else:  # pragma: no cover
-            yield
+        # each BLAS library's own get/set calls (a microsecond; ThreadpoolController.limit
+        # inspects every library again on each use)
+        for lib in (ctrl.lib_controllers if ctrl else ()):
+            if lib.user_api == "blas":
+                before = lib.get_num_threads()
+                if before != limit:
+                    lib.set_num_threads(limit)
+                    changed.append((lib, before))
+        yield
     finally:
+        for lib, before in reversed(changed):
+            lib.set_num_threads(before)
         _state["depth"] -= 1
 
 

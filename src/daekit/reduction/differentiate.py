@@ -30,7 +30,6 @@ import numpy as np
 
 from ..errors import ReductionError
 from ..model import Model, Variable
-from ..structure import sigma_method
 
 __all__ = ["time_derivative", "Expansion", "expand"]
 
@@ -138,12 +137,12 @@ def sigma_offsets(model: Model, validate: bool = True):
     model = Model.require(model, "reduce_index")
     if validate:
         model.validate()  # StructuralError naming the equations at fault
-    inc = model.incidence()
     try:
-        s = sigma_method(inc.n_equations, inc.rows, inc.cols, inc.vals)
+        s = model.sigma()
     except ValueError as exc:  # pragma: no cover - validate() catches structural singularity
         raise ReductionError(f"model {model.name!r}: structural analysis failed ({exc})") from None
-    return s.transversal, np.asarray(s.c, dtype=np.int64), np.asarray(s.d, dtype=np.int64)
+    return (np.array(s.transversal), np.array(s.c, dtype=np.int64),
+            np.array(s.d, dtype=np.int64))
 
 
 def expand(model: Model, validate: bool = True) -> Expansion:

@@ -36,10 +36,12 @@ from .model import Model
 from .numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
+    VANISH,  # noqa: F401 - re-exported
     FastFunction,
     rank_info,
     sparse_rank_deficiency,
     sparse_rcond,
+    vanishing_removed,
 )
 from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, structural_index
@@ -707,35 +709,9 @@ class Analysis:
         }
 
 
-#: An entry whose value at a consistent point is below this fraction of its value at a random
-#: point vanishes on the solutions (``cos(x) (x' - v)`` where ``x' = v``): it is set to zero.
-#: The ratio of one entry at two points does not depend on units.
-VANISH = 1e-9
-
-
-def _vanishing_removed(at_consistent: sp.spmatrix, at_random: sp.spmatrix) -> sp.csr_matrix:
-    """``at_consistent`` without the entries that vanish on the solutions (see ``VANISH``);
-    both matrices must have the same pattern (the same symbolic expression)."""
-    c = sp.csr_matrix(at_consistent, copy=True)
-    rnd = sp.csr_matrix(at_random)
-    if c.nnz == 0 or c.shape != rnd.shape:
-        return c
-    ref = np.asarray(abs(rnd)[c.nonzero()]).ravel()
-    vals = c[c.nonzero()].A1 if hasattr(c[c.nonzero()], "A1") else np.asarray(c[c.nonzero()]).ravel()
-    tiny = np.abs(vals) <= VANISH * ref
-    if np.any(tiny):
-        r_, c_ = c.nonzero()
-        c[r_[tiny], c_[tiny]] = 0.0
-        c.eliminate_zeros()
-    return c
-
-
-def _vanishing_removed_dense(at_consistent: np.ndarray, at_random: np.ndarray) -> np.ndarray:
-    """:func:`_vanishing_removed` for dense matrices of the same expression."""
-    c = np.array(at_consistent, dtype=float)
-    tiny = (c != 0) & (np.abs(c) <= VANISH * np.abs(at_random))
-    c[tiny] = 0.0
-    return c
+# entries vanishing on the solutions: daekit.numerics.VANISH (one rule for analysis and reduction)
+_vanishing_removed = vanishing_removed
+_vanishing_removed_dense = vanishing_removed
 
 
 class _JacobianAt:

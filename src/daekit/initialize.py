@@ -65,7 +65,7 @@ import scipy
 import scipy.sparse as sp
 
 from .errors import InitializationError
-from .numerics import FastFunction
+from .numerics import FastFunction, equilibrate
 from .threads import limit_blas_threads
 from .wording import count
 
@@ -612,14 +612,71 @@ def initialize(
             H = H + conv(f(wv, *args, yv[curved])[0], ccs)
         return H.tocsc() if use_sparse else H
 
+    def scales(J):
+        """Row and column factors of ``J`` (:func:`daekit.numerics.equilibrate`): the step,
+        the line search and the convergence test work on ``diag(dr) h`` and ``w / dc``, so
+        that units of equations and variables (1e-6 .. 1e6) change neither the steps' rank
+        decisions nor when the iteration stops."""
+        if not J.shape[0] or not n:
+            return np.ones(J.shape[0]), np.ones(n)
+        dr, dc = equilibrate(J)
+        return dr, dc
+
+    def small(hv, wv, dr, dc, rtol) -> bool:
+        """``max |dr h| <= rtol (1 + max |w / dc|)``: the scaled residual is negligible."""
+        return (float(np.max(np.abs(dr * hv), initial=0.0))
+                <= rtol * (1.0 + float(np.max(np.abs(wv / dc), initial=0.0))))
+
+    def scaled_step(kind, dec_k, hv, J, wv, y, dr, dc):
+        """The (Gauss-)Newton step in the equilibrated coordinates ``u = w / dc`` and rows
+        ``dr h``, mapped back: ``(d, y)`` in the model's units."""
+        C = curvature(wv, y) if kind == "newton" else None
+        if dec_k:
+            rx, cx = dr[n_alg:], dc[:nx]
+            Jx = J[n_alg:, :nx]
+            if use_sparse:
+                Jx = (sp.diags(rx) @ Jx @ sp.diags(cx)).tocsc()
+                Cx = (sp.diags(cx) @ C[:nx, :nx] @ sp.diags(cx)).tocsc() if C is not None \
+                    else None
+            else:
+                Jx = Jx * rx[:, None] * cx[None, :]
+                Cx = C[:nx, :nx] * cx[:, None] * cx[None, :] if C is not None else None
+            hx = rx * hv[n_alg:]
+
+            def gx(_u):
+                Gv, JG = gfun_x(None)
+                return Gv, (JG @ sp.diags(cx)).tocsc() if use_sparse else JG * cx[None, :]
+
+            if use_sparse:
+                du, yx = _gn_step_sparse(hx, Jx, gx, wv[:nx] / cx, gval, nx, Cx)
+            else:
+                du, yx = _gn_step(hx, Jx, gx, wv[:nx] / cx, gval, nx, 0, Cx)
+            return (np.concatenate([cx * du, np.zeros(nz)]),
+                    np.concatenate([np.zeros(n_alg), rx * yx]))
+
+        def gs(_u):
+            Gv, JG = gfun(wv)
+            return Gv, (JG @ sp.diags(dc)).tocsc() if use_sparse else JG * dc[None, :]
+
+        if use_sparse:
+            Js = (sp.diags(dr) @ J @ sp.diags(dc)).tocsc()
+            Cs = (sp.diags(dc) @ C @ sp.diags(dc)).tocsc() if C is not None else None
+            du, ys = _gn_step_sparse(dr * hv, Js, gs, wv / dc, gval, metric_nx, Cs)
+        else:
+            Js = J * dr[:, None] * dc[None, :]
+            Cs = C * dc[:, None] * dc[None, :] if C is not None else None
+            du, ys = _gn_step(dr * hv, Js, gs, wv / dc, gval, metric_nx, n_alg, Cs)
+        return dc * du, dr * ys
+
     def gauss_newton(wv):
         """Damped (Gauss-)Newton from ``wv``: (point, residual, Jacobian, converged, iterations).
 
         With guesses, from the second iteration on the step includes the curvature of the
         Lagrangian at the last multipliers (Newton-Lagrange, SQP); a step that the line search
         cuts below 1/8 is replaced by the Gauss-Newton step. A trial point is accepted when it
-        reduces ||h|| sufficiently or the exact penalty ``f + rho ||h||_1``
-        (``rho = 2 max |y| + 1``)."""
+        reduces ``||dr h||`` sufficiently or the exact penalty ``f + rho ||dr h||_1``
+        (``rho = 2 max |y / dr| + 1``). Steps, norms and the stopping test are in the
+        equilibrated coordinates of :func:`scales` (recomputed at every iterate)."""
         it = 0
         hv, J = hval(wv)
         fv = objective(wv)
@@ -632,68 +689,65 @@ def initialize(
                     f"initialize: the equations {bad or '(Jacobian)'} are not finite at the "
                     "current point; give guesses closer to a consistent state"
                 )
+            dr, dc = scales(J)
             use_c = gval.size and y is not None and np.any(y)
-            normh = np.linalg.norm(hv)
+            normh = np.linalg.norm(dr * hv)
+            stop = tol * (1.0 + float(np.max(np.abs(wv / dc), initial=0.0)))
             # decoupled: neither the invariants nor the used values depend on z, and alg holds
             # (z was re-solved): the step is found on x alone, without alg's rows (the
             # densest) and z's columns in the KKT system; z follows by re-solving alg
             dec = (decoupled and settled["ok"]
-                   and float(np.max(np.abs(hv[:n_alg]), initial=0.0)) <= 1e-8 * scale)
+                   and small(hv[:n_alg], wv, dr[:n_alg], dc, 1e-8))
             current["w"] = wv
             # first choice, then the fallback when the line search cuts it below 1/8: the
             # joint Gauss-Newton step on (x, z)
             first = ("newton" if use_c else "gn", dec)
             candidates = [first] if first == ("gn", False) else [first, ("gn", False)]
             for kind, dec_k in candidates:
-                C = curvature(wv, y) if kind == "newton" else None
-                if dec_k:
-                    Jx, hx = J[n_alg:, :nx], hv[n_alg:]
-                    Cx = C[:nx, :nx] if C is not None else None
-                    if use_sparse:
-                        Jx = Jx.tocsc()
-                        Cx = Cx.tocsc() if Cx is not None else None
-                        dx_, yx = _gn_step_sparse(hx, Jx, gfun_x, wv[:nx], gval, nx, Cx)
-                    else:
-                        dx_, yx = _gn_step(hx, Jx, gfun_x, wv[:nx], gval, nx, 0, Cx)
-                    d = np.concatenate([dx_, np.zeros(nz)])
-                    yn = np.concatenate([np.zeros(n_alg), yx])
-                elif use_sparse:
-                    d, yn = _gn_step_sparse(hv, J, gfun, wv, gval, metric_nx, C)
-                else:
-                    d, yn = _gn_step(hv, J, gfun, wv, gval, metric_nx, n_alg, C)
-                rho = 2.0 * float(np.max(np.abs(yn), initial=0.0)) + 1.0
-                phi = fv + rho * float(np.sum(np.abs(hv)))
+                d, yn = scaled_step(kind, dec_k, hv, J, wv, y, dr, dc)
+                rho = 2.0 * float(np.max(np.abs(yn / dr), initial=0.0)) + 1.0
+                phi = fv + rho * float(np.sum(np.abs(dr * hv)))
                 alpha = 1.0
                 for _ in range(30):
                     wn = settle(wv + alpha * d)
                     hn, Jn = hval(wn)
                     if np.all(np.isfinite(hn)):
-                        nh = np.linalg.norm(hn)
-                        if nh <= max(normh * (1 - 1e-4 * alpha), tol * scale) or alpha < 1e-3:
+                        nh = np.linalg.norm(dr * hn)
+                        if nh <= max(normh * (1 - 1e-4 * alpha), stop) or alpha < 1e-3:
                             break
-                        if gval.size and objective(wn) + rho * float(np.sum(np.abs(hn))) < phi:
+                        if gval.size and objective(wn) + rho * float(
+                                np.sum(np.abs(dr * hn))) < phi:
                             break
                     alpha *= 0.5
                 if alpha >= 0.125:
                     break
             y = yn
-            step = np.max(np.abs(wn - wv)) if n else 0.0
-            if not np.all(np.isfinite(hn)) or np.linalg.norm(hn) > 1e3 * max(normh, 1.0):
+            step = np.max(np.abs((wn - wv) / dc)) if n else 0.0
+            if not np.all(np.isfinite(hn)) or np.linalg.norm(dr * hn) > 1e3 * max(normh, 1.0):
                 break  # diverging: analyse the best point reached
             wv, hv, J = wn, hn, Jn
             fv = objective(wv)
-            if np.max(np.abs(hv), initial=0.0) <= tol * scale and step <= 1e-9 * (
-                1 + np.max(np.abs(wv), initial=0.0)
+            if small(hv, wv, dr, dc, tol) and step <= 1e-9 * (
+                1 + np.max(np.abs(wv / dc), initial=0.0)
             ):
                 return wv, hv, J, True, it
-            history.append(float(np.linalg.norm(hv)))
+            history.append(float(np.linalg.norm(dr * hv)))
             if len(history) > 10 and history[-1] > 0.999 * history[-10] and history[-1] > 1e-6:
                 break  # stagnating far from zero: inconsistent
         return wv, hv, J, False, it
 
+    def inconsistent(wv, hv, J) -> bool:
+        """The residual at the end is not negligible in the equilibrated coordinates."""
+        if not np.all(np.isfinite(hv)):
+            return True
+        try:
+            dr, dc = scales(J)
+        except (ValueError, FloatingPointError):  # pragma: no cover - non-finite Jacobian
+            return True
+        return not small(hv, wv, dr, dc, 1e-8)
+
     wv, hv, J, converged, it = gauss_newton(w0.copy())
-    if (not converged and float(np.max(np.abs(hv), initial=0.0)) > 1e-8 * scale
-            and not given.all()):
+    if not converged and inconsistent(wv, hv, J) and not given.all():
         # The default start (0 for values nobody gave) can be a singular point of the
         # constraints (p = 0 for a rod): try once from a generic point before giving up.
         rng = np.random.default_rng(0)
@@ -704,7 +758,7 @@ def initialize(
         if second[3]:
             wv, hv, J, converged, it = second
     res = float(np.max(np.abs(hv), initial=0.0))
-    if not converged and res > 1e-8 * scale:
+    if not converged and inconsistent(wv, hv, J):
         # which conditions the fixed values break: evaluated with every fixed state or
         # algebraic value held exactly (z re-solved), the rest at the least-squares point
         held = wv.copy()

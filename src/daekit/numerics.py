@@ -45,7 +45,8 @@ import scipy.sparse as sp
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "FastFunction", "redundant_rows"]
+           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "FastFunction", "redundant_rows",
+           "VANISH", "vanishing_removed"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -241,6 +242,46 @@ def equilibrated(A):
     if sp.issparse(A):
         return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
     return np.asarray(A, dtype=float) * dr[:, None] * dc[None, :]
+
+
+#: An entry whose value at a consistent point is below this fraction of its value at a random
+#: point vanishes on the solutions (``cos(x) (x' - v)`` where ``x' = v``): it is set to zero
+#: before a rank decision there. The ratio of one entry at two points does not depend on units
+#: (equilibration alone would scale such a rounding residue up to unit size).
+VANISH = 1e-9
+
+
+def vanishing_removed(at_consistent, at_random):
+    """``at_consistent`` without the entries that vanish on the solutions (see ``VANISH``):
+    both matrices are values of the same symbolic matrix (the same pattern), at a consistent
+    and at a random point; dense arrays or SciPy sparse matrices (the result is CSR then).
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> vanishing_removed(np.array([[1.0, 3e-14]]), np.array([[2.0, 0.5]]))
+    array([[1., 0.]])
+    """
+    if not sp.issparse(at_consistent):
+        c = np.array(at_consistent, dtype=float)
+        rnd = np.asarray(at_random.toarray() if sp.issparse(at_random) else at_random,
+                         dtype=float)
+        if c.shape != rnd.shape:
+            return c
+        c[(c != 0) & (np.abs(c) <= VANISH * np.abs(rnd))] = 0.0
+        return c
+    c = sp.csr_matrix(at_consistent, dtype=float, copy=True)
+    rnd = sp.csr_matrix(at_random)
+    if c.nnz == 0 or c.shape != rnd.shape:
+        return c
+    r_, c_ = c.nonzero()
+    ref = np.abs(np.asarray(rnd[r_, c_]).ravel())
+    vals = np.asarray(c[r_, c_]).ravel()
+    tiny = np.abs(vals) <= VANISH * ref
+    if np.any(tiny):
+        c[r_[tiny], c_[tiny]] = 0.0
+        c.eliminate_zeros()
+    return c
 
 
 @dataclass

@@ -412,6 +412,12 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             J = jac(w)
             if not np.all(np.isfinite(J if dense else J.data)):
                 break
+            # re-equilibrated at every iterate: the first Jacobian, at a start far from the
+            # solutions, can scale a nonlinear equation (x + x^3 / 10 in a unit of 1e5) by
+            # many orders of magnitude wrongly for the points where it holds
+            dr, dc = equilibrate(J)
+            inv_dc = 1.0 / dc
+            r = merit(h)
         d = _min_norm_step(scaled(J), dr * h)
         if d is None or not finite(d):
             break

@@ -575,10 +575,12 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
 CONSISTENT_CHECK_LIMIT = 1000
 
 
-def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
+def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
-    ``r.info["index1_check"]``."""
+    ``r.info["index1_check"]``. Entries that vanish on the solutions (below
+    :data:`daekit.numerics.VANISH` of their value ``at_random``, the matrix at a random point)
+    are zero there: equilibration would otherwise make their rounding residue count."""
     from ..points import reduced_consistent_point
 
     if r.nx + r.nz > CONSISTENT_CHECK_LIMIT:
@@ -596,12 +598,13 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
             A = np.asarray(f(*cp).full(), dtype=float)
             if not np.all(np.isfinite(A)):
                 continue
-            bad = _dense_singular_rows(A, np.arange(r.nz))
+            bad = _dense_singular_rows(numerics.vanishing_removed(A, at_random),
+                                       np.arange(r.nz))
         else:
             A = _to_scipy(f(*cp))
             if not np.all(np.isfinite(A.data)):
                 continue
-            bad = _singular_rows(A)
+            bad = _singular_rows(numerics.vanishing_removed(A, at_random).tocsc())
         if bad is None:
             r.info["index1_check"] = "passed"
             r.info["index1_check_at"] = "a consistent point"
@@ -644,7 +647,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
         # still be singular (a constraint times a factor that vanishes there): check at
         # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
-        bad = _singular_on_solutions(r, f, seed)
+        bad = _singular_on_solutions(r, f, seed, A)
         if bad is None:
             return
     if not finite:

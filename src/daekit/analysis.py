@@ -544,7 +544,10 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         r_all = r_rest = -1
         fulls = []
         for q in points:
-            full = _vanishing_removed_dense(at.dense(q), at_random)
+            # entries vanishing on the solutions: compared with a point near q in its units
+            ref = (at.dense(q.perturbed()) if q.status is not None and q.status.consistent
+                   else at_random)
+            full = _vanishing_removed_dense(at.dense(q), ref)
             _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
                                                           r // len(rows)))
             jac = full[:, :nc]
@@ -763,6 +766,46 @@ def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_mat
     return _JacobianAt(model, rows, cols, orders)(pt)
 
 
+def system_jacobian_singular(model: Model, c: np.ndarray, d: np.ndarray, seed: int = 0
+                             ) -> list[str] | None:
+    """The equations of the diagonal blocks of Pryce's system Jacobian
+    ``dF_i / dx_j^(d_j - c_i)`` that are singular at a random point (so everywhere: the rank
+    there is the generic one), or None. One sparse Jacobian of the model's own equations and a
+    sparse LU per block (:func:`_rank_check`); no differentiation. Used by
+    :func:`daekit.reduce_index` where an elimination (a substituted derivative) can hide the
+    singularity from the reduced system's own index-1 check.
+
+    >>> import daekit as dk
+    >>> m = dk.Model("m"); x = m.state("x"); y = m.state("y")
+    >>> _ = m.equation(m.der(x) + m.der(y) - 1, name="a")
+    >>> _ = m.equation(2 * m.der(x) + 2 * m.der(y) - x, name="b")
+    >>> sig = m.sigma()
+    >>> system_jacobian_singular(m, sig.c, sig.d)
+    ['a', 'b']
+    """
+    inc = model.incidence()
+    c, d = np.asarray(c), np.asarray(d)
+    keep = inc.vals == d[inc.cols] - c[inc.rows]
+    jac_at = _JacobianAt(model, inc.rows[keep], inc.cols[keep], inc.vals[keep])
+    pt = _Point(model, None, seed)
+    try:
+        jac = jac_at(pt)
+    except _NonFinite:
+        return None
+    coo = jac.tocoo()
+    n = model.n_equations
+    m_ = dulmage_mendelsohn(n, n, coo.row, coo.col)
+    if not m_.is_square_nonsingular:
+        return None  # structurally singular: the structural analysis says so itself
+    names = model.equation_names
+    bad: list[str] = []
+    for br, bc in block_triangular(n, coo.row, coo.col, m_.row_match):
+        ch = _rank_check(jac, br, bc)
+        if ch.rank < ch.size:
+            bad += [names[i] for i in ch.rows]
+    return bad or None
+
+
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
 #: rows than this are tested at a random point unless ``analyze(..., consistent=True)``.
 POINT_LIMIT = 100
@@ -862,7 +905,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(jac_at(pt), jac)
+            jac_c = _vanishing_removed(jac_at(pt), jac_at(pt.perturbed()))
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -876,7 +919,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(jac_at(pt2), jac)
+                jac2 = _vanishing_removed(jac_at(pt2), jac_at(pt2.perturbed()))
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)

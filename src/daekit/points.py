@@ -157,6 +157,25 @@ class TestPoint:
         draws, same user values."""
         return self.sibling(0)
 
+    def perturbed(self, k: int = 1) -> TestPoint:
+        """A point near this one in the model's own units: every value that is not held
+        (time, parameters, inputs) multiplied by a factor from ``U(0.5, 1.5)`` (exact zeros
+        and unset symbols drawn afresh). The reference for entries that vanish on the
+        solutions (:data:`daekit.numerics.VANISH`): a genuine entry, a product of powers of
+        the values, changes by a bounded factor between the two points whatever the units,
+        while one that vanishes at a consistent point (a residual's multiple) does not
+        vanish at the perturbed one. A random point in other units can make a genuine
+        entry look vanishing (``(3996 x)^3`` at ``x = 5e-4`` against ``x = 0.7``)."""
+        other = TestPoint(self.model, self.point, self.seed + 15485863 * k, self.attempt)
+        other.t = self.t
+        held = _fixed_kinds(self.model)
+        for h, v in self.values.items():
+            if h in held or h in self.given:
+                other.values[h] = v
+            elif v != 0.0:
+                other.values[h] = v * float(other.rng.uniform(0.5, 1.5))
+        return other
+
     def assign(self, syms, vals) -> None:
         for s, v in zip(syms, vals, strict=True):
             self.values[s.element_hash()] = float(v)
@@ -335,14 +354,15 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
     return st
 
 
-def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60, jac=None
-                 ) -> tuple[np.ndarray, PointStatus]:
+def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60, jac=None,
+                 rescale: bool = False) -> tuple[np.ndarray, PointStatus]:
     """Solve the (under- or over-determined) ``h(w) = 0`` by Gauss--Newton with minimum-norm
     steps, a trust radius and a backtracking line search, in the coordinates of the
     equilibrated first Jacobian (rows and columns scaled, :func:`daekit.numerics.equilibrate`),
     so that the units of equations and unknowns do not matter. ``fun(w) -> h`` and
     ``jac(w) -> J`` (sparse); without ``jac``, ``fun(w) -> (h, J)``. Converged when every
-    scaled residual is below ``tol`` times ``1 + max |w|`` (scaled).
+    scaled residual is below ``tol`` times ``1 + max |w|`` (scaled). ``rescale``: equilibrated
+    afresh at every iterate (for starts far from the solutions in badly scaled units).
 
     >>> import numpy as np, scipy.sparse as sp
     >>> fun = lambda w: (np.array([w[0]**2 + w[1]**2 - 1]), sp.csr_matrix([[2*w[0], 2*w[1]]]))
@@ -412,6 +432,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             J = jac(w)
             if not np.all(np.isfinite(J if dense else J.data)):
                 break
+        if it and rescale:
             # re-equilibrated at every iterate: the first Jacobian, at a start far from the
             # solutions, can scale a nonlinear equation (x + x^3 / 10 in a unit of 1e5) by
             # many orders of magnitude wrongly for the points where it holds
@@ -505,7 +526,7 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
         uv = rng.uniform(0.2, 1.2, r.nu)
         w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
         wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x)[0],
-                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x))
+                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x), rescale=True)
         if st.consistent:
             return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
     return None

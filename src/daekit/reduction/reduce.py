@@ -171,14 +171,28 @@ def reduce_index(
     # (d alg / d z is the system Jacobian, or its Schur complement on the eliminated pivots)
     ex = expand(model)
     r = _differentiate(ex, [], eliminate)
+    masked = None
     try:
         check_index1(r, seed=seed)
-        return attach_declared(r, model, seed=seed)  # m.invariant(...): checked, appended
+        if r.eliminated or r.substituted:
+            masked = _masked_singular(model, ex, seed)
+        if masked is None:
+            return attach_declared(r, model, seed=seed)  # m.invariant(...): checked, appended
     except ReductionError:
         pass
     ex, amendments = amended_expansion(model, seed=seed)
     if amendments:
         r = _differentiate(ex, amendments, eliminate)
+    elif masked is not None:
+        raise ReductionError(
+            f"model {getattr(model, 'name', 'model')!r}: Pryce's system Jacobian is singular "
+            f"in the equations {', '.join(repr(e) for e in masked)} (structural analysis "
+            "fails there), and no combination with constant coefficients repairs it; the "
+            "reduced system with their derivatives substituted passes its own index-1 check "
+            "but would have too many degrees of freedom, so it is not returned. Rewrite "
+            "these equations so that the structure shows the true dependencies (see "
+            "dk.analyze(model).explain())."
+        )
     try:
         check_index1(r, seed=seed)
         if amendments:
@@ -190,6 +204,18 @@ def reduce_index(
             reduce_index(model, seed=seed, eliminate="states")
         raise
     return attach_declared(r, model, seed=seed)
+
+
+def _masked_singular(model: Model, ex: Expansion, seed: int) -> list[str] | None:
+    """The equations where Pryce's system Jacobian is singular although the reduced system passed its
+    index-1 check: a derivative substituted from an equation of a singular block (a constant
+    mixing of a constraint with an equation that gives a derivative) removes the
+    singularity from ``d alg / d z`` while the offsets stay too small, and the reduced system
+    would have too many degrees of freedom (:func:`daekit.analysis.system_jacobian_singular`,
+    at a random point)."""
+    from ..analysis import system_jacobian_singular
+
+    return system_jacobian_singular(model, ex.c, ex.d, seed)
 
 
 def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDAE:
@@ -575,6 +601,20 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
 CONSISTENT_CHECK_LIMIT = 1000
 
 
+def _perturbed(cp, seed: int, at_random, f: ca.Function):
+    """``f`` at the consistent point ``cp = (t, x, z, u, p)`` with ``x`` and ``z`` multiplied
+    by factors from ``U(0.5, 1.5)``: the reference of :func:`daekit.numerics.vanishing_removed`
+    in the units of the point (see :meth:`daekit.points.TestPoint.perturbed`); ``at_random``
+    where that is not finite."""
+    rng = np.random.default_rng(seed + 15485863)
+    t, x, z, u, p = cp
+    x1 = np.where(x != 0, x * rng.uniform(0.5, 1.5, x.size), rng.uniform(0.2, 1.2, x.size))
+    z1 = np.where(z != 0, z * rng.uniform(0.5, 1.5, z.size), rng.uniform(0.2, 1.2, z.size))
+    val = f(t, x1, z1, u, p)
+    ref = np.asarray(val.full(), dtype=float) if not sp.issparse(at_random) else _to_scipy(val)
+    return ref if np.all(np.isfinite(ref.data if sp.issparse(ref) else ref)) else at_random
+
+
 def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
@@ -594,17 +634,17 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
             r.info["index1_check"] = "passed"
             r.info["index1_check_at"] = "a random point (no consistent point found)"
             return None
+        ref = _perturbed(cp, seed + k, at_random, f)
         if r.nz <= 64:  # small: dense SVD at once (no sparse machinery per call)
             A = np.asarray(f(*cp).full(), dtype=float)
             if not np.all(np.isfinite(A)):
                 continue
-            bad = _dense_singular_rows(numerics.vanishing_removed(A, at_random),
-                                       np.arange(r.nz))
+            bad = _dense_singular_rows(numerics.vanishing_removed(A, ref), np.arange(r.nz))
         else:
             A = _to_scipy(f(*cp))
             if not np.all(np.isfinite(A.data)):
                 continue
-            bad = _singular_rows(numerics.vanishing_removed(A, at_random).tocsc())
+            bad = _singular_rows(numerics.vanishing_removed(A, ref).tocsc())
         if bad is None:
             r.info["index1_check"] = "passed"
             r.info["index1_check_at"] = "a consistent point"

@@ -35,13 +35,21 @@ import pytest
 import daekit as dk
 
 FAST_CASES = 8
-#: Rates the generated cases must reach (measured: see the issue note; the remaining
-#: failures are analysed there). A regression below them fails the test.
-MIN_ANALYSIS_OK = 0.85
-#: 0.15 with initialize's Gauss-Newton on equilibrated unknowns (lost in the merge with the
-#: rewritten initialize; to be ported): units of variables make initialize fail without it.
-MAX_WRONG = 0.25
+#: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``; the counts are in the
+#: issue note): the reduction is never silently wrong (a named ReductionError where daekit
+#: cannot reduce a case), and analyze is right or raises a named error, except on
+#: MAX_ANALYSIS_WRONG of them (units of variables with an equation times 1.5 + sin(unknown):
+#: the derivative array at consistent points has a lower rank than the untransformed
+#: model's, not understood yet).
+MAX_WRONG = 0
+MIN_ANALYSIS_OK = 0.95
+MAX_ANALYSIS_WRONG = 0.03
 SLOW_CASES = 500
+#: IDAS tolerances of the simulated check. At rtol >= 1e-10 the reduced systems of index-4/5
+#: chains show a pathology of the integrator (nearly every step fails the error test once:
+#: 114302 steps, 114276 failures on seed 3, and ends 3e-5 off), at rtol <= 1e-11 they take
+#: about 100 steps and end 1e-10 off; reported to the simulate owner.
+RTOL, ATOL = 1e-11, 1e-13
 T0, T1 = 0.3, 0.8
 
 
@@ -201,13 +209,27 @@ class Outcome:
     analysis_ok: bool
     reduction: str  # "ok", "ReductionError", "wrong"
     detail: str = ""
+    analysis: str = "ok"  # "ok", "error" (a named daekit error), "wrong"
 
 
 def check(case: Case, simulate: bool = True) -> Outcome:
     """Analyze, reduce, initialize and simulate one case against its truth."""
-    a = dk.analyze(case.model)
-    ok_a = (a.index, a.dof) == (case.index, case.dof)
-    detail = "" if ok_a else f"analyze gave index {a.index}, DOF {a.dof}"
+    kind = "ok"
+    try:
+        a = dk.analyze(case.model)
+        ok_a = (a.index, a.dof) == (case.index, case.dof)
+        detail = "" if ok_a else f"analyze gave index {a.index}, DOF {a.dof}"
+        kind = "ok" if ok_a else "wrong"
+    except dk.DaekitError as exc:
+        ok_a, kind = False, "error"
+        detail = f"analyze: {type(exc).__name__}: {str(exc)[:120]}"
+    out = _check_reduction(case, simulate, detail)
+    out.analysis_ok, out.analysis = ok_a, kind
+    return out
+
+
+def _check_reduction(case: Case, simulate: bool, detail: str) -> Outcome:
+    ok_a = False
     try:
         r = dk.reduce_index(case.model)
     except dk.ReductionError as exc:
@@ -227,7 +249,7 @@ def check(case: Case, simulate: bool = True) -> Outcome:
         return Outcome(ok_a, "wrong", detail + f"; initial values off by {max(errs):.1e}")
     if simulate:
         try:
-            traj = dk.simulate(r, np.linspace(T0, T1, 3), init, rtol=1e-10, atol=1e-13)
+            traj = dk.simulate(r, np.linspace(T0, T1, 3), init, rtol=RTOL, atol=ATOL)
         except dk.DaekitError as exc:
             return Outcome(ok_a, "wrong", detail + f"; simulate: {str(exc)[:200]}")
         errs = [abs(traj[nm][-1] - f(T1)) / (1e-3 + abs(f(T1))) for nm, f in case.exact.items()]
@@ -239,7 +261,8 @@ def check(case: Case, simulate: bool = True) -> Outcome:
 def run(count: int, start: int = 0, simulate_every: int = 1, verbose: bool = False):
     """Counts over ``count`` cases (seeds ``start`` ..): analysis right, reduction right /
     named ReductionError / wrong; the failing seeds with their details."""
-    counts = {"analysis_ok": 0, "ok": 0, "ReductionError": 0, "wrong": 0}
+    counts = {"analysis_ok": 0, "analysis_error": 0, "analysis_wrong": 0, "ok": 0,
+              "ReductionError": 0, "wrong": 0}
     failures = []
     sizes, indices = [], []
     for k in range(start, start + count):
@@ -248,6 +271,8 @@ def run(count: int, start: int = 0, simulate_every: int = 1, verbose: bool = Fal
         indices.append(case.index)
         out = check(case, simulate=(k % simulate_every == 0))
         counts["analysis_ok"] += out.analysis_ok
+        counts["analysis_error"] += out.analysis == "error"
+        counts["analysis_wrong"] += out.analysis == "wrong"
         counts[out.reduction] += 1
         if not out.analysis_ok or out.reduction == "wrong":
             failures.append((k, case.transforms, out.detail))
@@ -268,9 +293,11 @@ def test_generator_truth_without_transformations():
 
 
 def _assert_rates(counts, n, failures):
-    assert counts["analysis_ok"] >= MIN_ANALYSIS_OK * n, (counts, failures)
     assert counts["wrong"] <= MAX_WRONG * n, (counts, failures)
+    assert counts["analysis_ok"] >= MIN_ANALYSIS_OK * n, (counts, failures)
+    assert counts["analysis_wrong"] <= MAX_ANALYSIS_WRONG * n, (counts, failures)
     assert counts["ok"] + counts["ReductionError"] + counts["wrong"] == n
+    assert counts["ok"] >= 0.75 * n, counts  # named errors are allowed, not as the rule
 
 
 def test_equivalent_models_fast():
@@ -280,9 +307,14 @@ def test_equivalent_models_fast():
     _assert_rates(counts, FAST_CASES, failures)
 
 
-# The full 500 cases run as a script (``python tests/test_equivalence.py 500`` prints the
-# counts), not in the suite: at today's speed of the consistent-point analysis they take far
-# longer than the suite's budget (one case was seen to run for minutes).
+@pytest.mark.slow
+def test_equivalent_models_500():
+    """The acceptance run: 500 cases (seeds 0..499), every third simulated (about 10 min;
+    ``python tests/test_equivalence.py 500`` simulates all and prints the counts)."""
+    counts, failures, sizes, indices = run(SLOW_CASES, simulate_every=3)
+    assert set(indices) == {1, 2, 3, 4, 5}
+    assert min(sizes) >= 2 and max(sizes) <= 60
+    _assert_rates(counts, SLOW_CASES, failures)
 
 
 # ----------------------------------------------------------------------------- the snippets

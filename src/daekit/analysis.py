@@ -55,6 +55,9 @@ __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differen
 EASY_DENSE_LIMIT = 120  # largest leading Jacobian checked by a dense SVD in the easy test
 NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array is computed
 ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take many seconds)
+#: Most expression nodes of one level of a derivative array (an equation times sin(x) triples
+#: them with each differentiation: level 12 of an 8-equation model took 30 s to differentiate)
+ARRAY_NODES = 300_000
 BATCH = 60  # small connected parts are stacked into derivative arrays of about this many unknowns
 
 
@@ -506,16 +509,29 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 v.append(var.der(r))
                 w.append(var.der(r + 1))
         levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
+        grown["nodes"] = ca.Function("level", ca.symvar(levels[-1]), [levels[-1]]).n_nodes()
         col_j.extend(cols)
         col_r.extend(int(mj) + k for mj in m)
         target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
         ncols.append(len(col_j))
 
+    grown = {"nodes": 0}  # expression nodes of the last level made
+
     def too_long(k: int) -> bool:
-        if (k + 1) * len(rows) <= ARRAY_LIMIT:
+        if (k + 1) * len(rows) <= ARRAY_LIMIT and grown["nodes"] <= ARRAY_NODES:
             return False
         if soft:
             return True
+        if grown["nodes"] > ARRAY_NODES:
+            raise ModelError(
+                f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
+                f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+                f"level {k - 1} and its expressions grow beyond {ARRAY_NODES} nodes (each "
+                "differentiation multiplies them); the equations may not determine their "
+                "unknowns at the test points, or factors such as sin(x) times an equation "
+                "make every derivative longer: give a point where these equations are "
+                "regular (point=...), or write the model without such factors"
+            )
         raise ModelError(
             f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
             f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "

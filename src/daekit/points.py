@@ -355,7 +355,7 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
 
 
 def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60, jac=None,
-                 rescale: bool = False) -> tuple[np.ndarray, PointStatus]:
+                 rescale: bool = True) -> tuple[np.ndarray, PointStatus]:
     """Solve the (under- or over-determined) ``h(w) = 0`` by Gauss--Newton with minimum-norm
     steps, a trust radius and a backtracking line search, in the coordinates of the
     equilibrated first Jacobian (rows and columns scaled, :func:`daekit.numerics.equilibrate`),
@@ -402,8 +402,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     def merit(hv):
         return np.abs(dr * hv)
 
-    def level(wv):
-        return tol * (1.0 + float(np.abs(wv * inv_dc).max())) if n else tol
+    def level(wv, Jv):
+        """Per row: ``tol`` times the size of the row's terms ``sum_j |dr_i J_ij w_j|`` (plus
+        ``1e-6`` of the largest scaled value): a row of small terms among large values is
+        held to its own scale (a tolerance relative to the largest value alone accepted
+        points off by 0.05 in rows whose terms are of order 1)."""
+        if not n:
+            return tol
+        Ja = abs(Jv) if sp.issparse(Jv) else np.abs(Jv)
+        terms = dr * np.asarray(Ja @ np.abs(wv), dtype=float).ravel()
+        return tol * (terms + 1e-6 * (1.0 + float(np.abs(wv * inv_dc).max())))
 
     def finite(hv):
         return bool(np.isfinite(hv).all())
@@ -411,7 +419,11 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     r = merit(h)
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
     for it in range(max_iter + 1):
-        if r.max() <= level(w):
+        if it:
+            J = jac(w)
+            if not np.all(np.isfinite(J if dense else J.data)):
+                break
+        if np.all(r <= level(w, J)):
             # polish to rounding: full Newton steps while the residual drops tenfold (the
             # Jacobians at the point must not carry residue of terms that vanish there)
             for _ in range(4):
@@ -428,10 +440,6 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             return w, PointStatus(True, float(r.max()), it)
         if it == max_iter or n == 0:
             break
-        if it:
-            J = jac(w)
-            if not np.all(np.isfinite(J if dense else J.data)):
-                break
         if it and rescale:
             # re-equilibrated at every iterate: the first Jacobian, at a start far from the
             # solutions, can scale a nonlinear equation (x + x^3 / 10 in a unit of 1e5) by
@@ -451,7 +459,8 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             hn = fun(wn)
             if finite(hn):
                 rn = merit(hn)
-                if float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
+                if (float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0
+                        or np.all(rn <= level(wn, J))):
                     break
             alpha *= 0.5
         else:

@@ -61,6 +61,7 @@ from .mechanisms import (
     lagrangian_planar_chain,
 )
 from .pendula import chained_pendula, pendulum_planar, planar_chain
+from .slider_crank import SLIDER_CRANK_DATA, slider_crank
 
 __all__ = [
     "CRANE_END_STOP_INIT",
@@ -107,6 +108,8 @@ __all__ = [
     "pendulum3d",
     "pendulum_planar",
     "planar_chain",
+    "SLIDER_CRANK_DATA",
+    "slider_crank",
     "transistor_amplifier",
 ]
 
@@ -165,6 +168,10 @@ def catalog() -> dict[str, CatalogEntry]:
         "arevalo": CatalogEntry(arevalo, 3, 2, "E3: C. Arevalo (1995), particle on a circle"),
         "chemakzo": CatalogEntry(chemakzo, 1, 5, testset + ", chemakzo"),
         "transistor_amplifier": CatalogEntry(transistor_amplifier, 1, 5, testset + ", transamp"),
+        "slider_crank": CatalogEntry(
+            slider_crank, 2, 11,
+            testset + ", crank (index-2 form; Simeon's model, equations derived here)",
+        ),
         "rigid_body": CatalogEntry(
             rigid_body, 0, 6, "free rigid body, unit quaternion (reference-problems.md, sec. 7)"
         ),

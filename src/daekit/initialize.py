@@ -118,6 +118,11 @@ class InitialValues:
         their Jacobian; systems below 300 unknowns). Empty when nothing is determined.
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
+
+    ``free``, ``dof``, ``dof_names``, ``redundant``, ``determined`` and ``notes`` come from a
+    rank analysis at the solution that is made on first access to any of them (a sweep that
+    only simulates from the values does not pay for it); the result is the same whenever it
+    is made.
     """
 
     t0: float
@@ -137,6 +142,33 @@ class InitialValues:
     fixed: list[str] = field(default_factory=list)
     dof_names: list[str] = field(default_factory=list)
     determined: list[str] = field(default_factory=list)
+    _deferred: object = field(default=None, repr=False, compare=False)
+
+    def __getattribute__(self, name: str):
+        if name in _DEFERRED:
+            d = object.__getattribute__(self, "__dict__")
+            if d.get("_deferred") is not None:
+                object.__getattribute__(self, "_resolve")()
+        return object.__getattribute__(self, name)
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in _DEFERRED and self.__dict__.get("_deferred") is not None:
+            self._resolve()
+        object.__setattr__(self, name, value)
+
+    def _resolve(self) -> None:
+        """Run the deferred analysis (free, redundant, determined values) once."""
+        d = self.__dict__
+        make = d.get("_deferred")
+        if make is None:
+            return
+        found = make()
+        d.update(found)
+        d["_deferred"] = None
+
+    def __getstate__(self) -> dict:
+        self._resolve()
+        return dict(self.__dict__)
 
     def __getitem__(self, name: str):
         from .model import expand_name
@@ -152,6 +184,10 @@ class InitialValues:
             f"InitialValues(t0={self.t0:g}: {shown}; dof={self.dof}, "
             f"residual={self.residual:.1e})"
         )
+
+
+#: InitialValues fields filled by the deferred analysis.
+_DEFERRED = frozenset({"free", "dof", "dof_names", "redundant", "determined", "notes"})
 
 
 def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = None
@@ -728,43 +764,52 @@ def initialize(
             hv_held = None
         _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_held)
 
-    found = None
-    if use_sparse:
-        # free states and redundant fixed values from a sparse basis of the consistency rows
-        found = _sparse_free_redundant(J, n_alg, n_inv, nx, list(r.x_names), fixed_names)
-        if found is None:  # degenerate (rank-deficient) consistency rows: dense analysis
-            J = J.toarray()
-    if found is not None:
-        free, redundant = found
-    else:
-        # redundant fixed values: rows of J dependent on the rows before them
-        redundant = _dependent_fixed(J, n_alg + n_inv, fixed_names)
-        free = _free_states(r, J[: n_alg + n_inv], nx, set(fixed_names))
-
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
     for _, ri, v in fixed_items:
         k = int(sc.w_pos[ri])
         if k >= 0:
             wv[k] = v
+    wf = wv.copy()
 
-    determined, notes = [], []
-    if not use_sparse and fixed_items:
-        pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
-        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names), pinned,
-                                        {nm for nm, _, _ in guess_items})
+    def dof_analysis() -> dict:
+        """Free states, redundant fixed values, determined states (deferred: made on first
+        access to any of them)."""
+        Jd = J
+        found = None
+        if use_sparse:
+            # free states and redundant fixed values from a sparse basis of the consistency
+            # rows
+            found = _sparse_free_redundant(Jd, n_alg, n_inv, nx, list(r.x_names), fixed_names)
+            if found is None:  # degenerate (rank-deficient) consistency rows: dense analysis
+                Jd = Jd.toarray()
+        if found is not None:
+            free, redundant = found
+        else:
+            # redundant fixed values: rows of J dependent on the rows before them
+            redundant = _dependent_fixed(Jd, n_alg + n_inv, fixed_names)
+            free = _free_states(r, Jd[: n_alg + n_inv], nx, set(fixed_names))
+        determined, notes = [], []
+        if not use_sparse and fixed_items:
+            pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
+            determined, notes = _determined(r, wf, Jd, hval, scale, set(fixed_names), pinned,
+                                            {nm for nm, _, _ in guess_items})
+        # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
+        # order; the free values are those of it that were not fixed (also under another
+        # name)
+        dof_names = [nm for nm in r.x_names if nm in free]
+        fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
+        free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
+        return {"free": free_only, "dof": len(dof_names), "dof_names": dof_names,
+                "redundant": redundant, "determined": determined, "notes": notes}
+
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
-    # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
-    # order; the free values are those of it that were not fixed (also under another name)
-    dof_names = [nm for nm in r.x_names if nm in free]
-    fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
-    free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
-        t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
-        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
-        determined=determined, notes=notes,
+        t0, x0, z0, u0, pv, values, [], 0, [], cons, it,
+        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=[],
+        determined=[], notes=[], _deferred=dof_analysis,
     )
 
 

@@ -532,16 +532,21 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         arr = ca.vertcat(*levels[: k + 1])
         at = PointFunction(model, ca.jacobian(arr, ca.vertcat(X, X_s)))  # made once
         tgt = np.array(target[:nc], dtype=bool)
+        bound = None  # the ranks at a random point: no consistent point has higher ones
         if k == 0 or pt.status is None:
             at_random = at.dense(pt)
         else:
             if state["rnd"] is None:
                 state["rnd"] = pt.random_copy()
             at_random = at.dense(state["rnd"])
-        points, state["other"] = _array_points(pt, arr, state["other"])
+            if np.isfinite(at_random).all():
+                bound = (numeric_rank(at_random[:, :nc])[0],
+                         numeric_rank(at_random[:, :nc][:, ~tgt])[0])
         r_all = r_rest = -1
         fulls = []
-        for q in points:
+
+        def rank_at(q) -> None:
+            nonlocal r_all, r_rest
             full = _vanishing_removed_dense(at.dense(q), at_random)
             _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
                                                           r // len(rows)))
@@ -549,6 +554,24 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             r_all = max(r_all, numeric_rank(jac)[0])
             r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
             fulls.append(full)
+
+        # two consistent points (the ranks on the solutions are the larger of the two); the
+        # second is not needed where the first attains the random point's ranks, the most
+        # any point has
+        cache: dict = {}  # the functions of the iteration, made once for both points
+        if not consistent_point(pt, arr, cache=cache).consistent:
+            rank_at(pt)  # as it is (pt.status says it is not consistent)
+            return r_all, r_rest, fulls
+        rank_at(pt)
+        if bound is not None and (r_all, r_rest) == bound:
+            return r_all, r_rest, fulls
+        other = state["other"]
+        if other is None:
+            other = state["other"] = pt.sibling(1)
+        else:
+            other.hold_from(pt)
+        if consistent_point(other, arr, cache=cache).consistent:
+            rank_at(other)
         return r_all, r_rest, fulls
 
     if top_first and soft and max_index > 0:
@@ -582,22 +605,6 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         "the model may be singular (not uniquely solvable) at the test point; try another "
         "point (point=...)"
     )
-
-
-def _array_points(pt: _Point, arr: ca.SX, other: _Point | None = None
-                  ) -> tuple[list[_Point], _Point | None]:
-    """Two points on ``arr = 0`` (``pt`` itself, moved, and ``other``: a sibling, or the
-    given one moved, with ``pt``'s time and inputs), or ``[pt]`` as it is when no consistent
-    point is found (then ``pt.status`` says so). Returns the points and ``other``."""
-    cache: dict = {}  # the functions of the iteration, made once for both points
-    st = consistent_point(pt, arr, cache=cache)
-    if not st.consistent:
-        return [pt], other
-    if other is None:
-        other = pt.sibling(1)
-    else:
-        other.hold_from(pt)
-    return ([pt, other] if consistent_point(other, arr, cache=cache).consistent else [pt]), other
 
 
 # ----------------------------------------------------------------------------- analyze

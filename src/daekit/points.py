@@ -30,6 +30,7 @@ Example
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import casadi as ca
@@ -371,7 +372,10 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             return Jv * dr[:, None] * dc[None, :]
     else:
         def scaled(Jv):
-            return sp.diags(dr) @ Jv @ sp.diags(dc)
+            Jv = sp.csc_matrix(Jv)
+            cols = np.repeat(np.arange(Jv.shape[1]), np.diff(Jv.indptr))
+            return sp.csc_matrix((Jv.data * dr[Jv.indices] * dc[cols], Jv.indices, Jv.indptr),
+                                 shape=Jv.shape)
     J = jac(w)
     Jdata = J if dense else J.data
     if not (np.all(np.isfinite(h)) and np.all(np.isfinite(Jdata))):
@@ -447,6 +451,36 @@ def _is_dense(n: int, m: int) -> bool:
     return n <= DENSE_UNKNOWNS and m <= 4 * DENSE_UNKNOWNS
 
 
+_KKT = threading.local()  # the last KKT pattern, per thread
+
+
+def _kkt(J: sp.csc_matrix, mu: float) -> sp.csc_matrix:
+    """``[[I, J^T], [J, -mu I]]`` (CSC) with its pattern assembled once per pattern of ``J``
+    (the iterations of one Gauss--Newton run share it): each call only places the values."""
+    J.sort_indices()
+    m, n = J.shape
+    key = (m, n, J.nnz, J.indptr.tobytes(), J.indices.tobytes())
+    c = _KKT.__dict__
+    if c.get("key") != key:
+        # markers: 1..nnz the entries of J, nnz+1..2 nnz those of J^T, -1 the identity,
+        # -2 the -mu diagonal
+        nnz = J.nnz
+        Jm = sp.csc_matrix((np.arange(1, nnz + 1, dtype=float), J.indices, J.indptr), shape=(m, n))
+        Jt = sp.csc_matrix(Jm.T)
+        Jt.data = Jt.data + nnz
+        K = sp.bmat([[-sp.identity(n, format="csc"), Jt], [Jm, -2 * sp.identity(m)]],
+                    format="csc")
+        K.sort_indices()
+        mk = K.data.astype(np.int64)
+        c.update(key=key, K=K, src=np.where(mk > nnz, mk - nnz - 1, mk - 1),
+                 ident=mk == -1, reg=mk == -2, nnz=nnz)
+    vals = J.data[np.clip(c["src"], 0, max(c["nnz"] - 1, 0))] if c["nnz"] else np.zeros(
+        c["src"].size)
+    vals = np.where(c["ident"], 1.0, np.where(c["reg"], -mu, vals))
+    K = c["K"]
+    return sp.csc_matrix((vals, K.indices, K.indptr), shape=K.shape)
+
+
 def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     """``d`` with ``J d ~ -h`` of least norm: ``d = -J^T (J J^T + mu I)^{-1} h`` with a tiny
     ``mu`` (redundant rows do no harm), dense SVD for small problems."""
@@ -460,7 +494,7 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     # the augmented (quasi-definite) system [[I, J^T], [J, -mu I]] [d; y] = [0; -h]: its
     # sparse LU stays linear in the size for chains and meshes (J J^T may fill in)
     mu = 1e-12
-    K = sp.bmat([[sp.identity(n, format="csc"), J.T], [J, -mu * sp.identity(m)]], format="csc")
+    K = _kkt(sp.csc_matrix(J), mu)
     try:
         lu = sp.linalg.splu(K, permc_spec="COLAMD")
     except RuntimeError:

@@ -38,8 +38,7 @@ from .numerics import (
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
     FastFunction,
     rank_info,
-    sparse_rank_deficiency,
-    sparse_rcond,
+    sparse_deficiency_rcond,
 )
 from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
 from .structure import block_triangular, dulmage_mendelsohn, structural_index
@@ -286,9 +285,9 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
         info = rank_info(sub)
         return _RankCheck(rows, size, info.rank, info.rcond,
                           [rows[k] for k in info.deficient_rows()])
-    small = sparse_rank_deficiency(sub)
+    small, rc = sparse_deficiency_rcond(sub)
     if small == 0:
-        return _RankCheck(rows, size, size, sparse_rcond(sub), [])
+        return _RankCheck(rows, size, size, rc, [])
     return _RankCheck(rows, size, size - small, 0.0, rows)
 
 
@@ -747,28 +746,40 @@ def _vanishing_removed_dense(at_consistent: np.ndarray, at_random: np.ndarray) -
 
 class _JacobianAt:
     """The entries ``dF_rows[k] / d x_cols[k]^(orders[k])`` as one CasADi function (made once,
-    evaluated at several points): ``jac(pt)`` is the numeric sparse matrix; raises
+    evaluated at several points; the symbolic Jacobians of each order are the model's,
+    :meth:`daekit.Model.residual_jacobian`): ``jac(pt)`` is the numeric sparse matrix; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
 
     def __init__(self, model: Model, rows, cols, orders) -> None:
         self.model = model
-        self.rows, self.cols = np.asarray(rows), np.asarray(cols)
-        F = model.residual
+        self.rows = np.asarray(rows, dtype=np.int64)
+        self.cols = np.asarray(cols, dtype=np.int64)
+        orders = np.asarray(orders, dtype=np.int64)
         th = model.t.element_hash()
+        n_unk = model.n_unknowns
         parts, take = [], []
         nnz = 0
         for order in np.unique(orders):
             sel = np.nonzero(orders == order)[0]
-            cols_k = np.unique(self.cols[sel])
-            J = ca.jacobian(F, model.symbols(cols_k, int(order)))
+            J, cols_k = model.residual_jacobian(int(order))
             r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
-            pos = {(a, int(cols_k[b])): nnz + k for k, (a, b) in enumerate(zip(r, cc))}
-            take.append((sel, np.array([pos.get((int(self.rows[q]), int(self.cols[q])), -1)
-                                        for q in sel], dtype=np.int64)))
-            parts.append(J.nz[:] if J.nnz() else ca.SX(0, 1))
-            nnz += J.nnz()
+            keys = np.asarray(r, dtype=np.int64) * n_unk + cols_k[np.asarray(cc, dtype=np.int64)]
+            order_of = np.argsort(keys, kind="stable")
+            want = self.rows[sel] * n_unk + self.cols[sel]
+            at = np.searchsorted(keys[order_of], want)
+            at = np.minimum(at, max(keys.size - 1, 0))
+            found = keys.size > 0
+            hit = (keys[order_of][at] == want) if found else np.zeros(want.size, dtype=bool)
+            nz_idx = order_of[at][hit] if found else np.zeros(0, dtype=np.int64)
+            idx = np.full(sel.size, -1, dtype=np.int64)
+            idx[hit] = nnz + np.arange(int(hit.sum()))
+            take.append((sel, idx))
+            if nz_idx.size:
+                parts.append(J.nz[nz_idx.tolist()])
+            nnz += int(nz_idx.size)
         expr = ca.vertcat(*parts) if parts else ca.SX(0, 1)
         self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        self.hashes = [s.element_hash() for s in self.syms]
         S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
         self.f = FastFunction(ca.Function("sparse_jacobian", [model.t, S], [expr]))
         self.take = take
@@ -776,7 +787,7 @@ class _JacobianAt:
 
     def __call__(self, pt: _Point) -> sp.csr_matrix:
         model = self.model
-        nz = self.f(pt.t, pt.evaluate(self.syms))[0]
+        nz = self.f(pt.t, pt.evaluate(self.syms, self.hashes))[0]
         data = np.zeros(self.n)
         for sel, idx in self.take:
             data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)

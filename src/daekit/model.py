@@ -780,6 +780,28 @@ class Model:
         self._cache["inc"] = inc
         return inc
 
+    def residual_jacobian(self, order: int) -> tuple[ca.SX, np.ndarray]:
+        """``(J, cols)``: the symbolic sparse Jacobian of the residual with respect to
+        derivative ``order`` of the scalar unknowns ``cols`` (those whose variable has that
+        derivative), made once until the model changes (the analysis evaluates it at several
+        points and for several tests).
+
+        >>> import daekit as dk
+        >>> J, cols = dk.examples.l3().residual_jacobian(2)
+        >>> J.shape[1] == len(cols)
+        True
+        """
+        cache = self._cache.setdefault("residual_jacobian", {})
+        if order not in cache:
+            var_of, _ = self._unknown_arrays()
+            has = np.array([order == 0 or order in v.ders for v in self.unknown_variables],
+                           dtype=bool)
+            cols = np.nonzero(has[var_of])[0] if var_of.size else np.zeros(0, np.int64)
+            J = ca.jacobian(self.residual, self.symbols(cols, order)) if cols.size else \
+                ca.SX(self.n_equations, 0)
+            cache[order] = (J, cols)
+        return cache[order]
+
     def sigma(self):
         """Pryce's Sigma-method on :meth:`incidence` (:func:`daekit.structure.sigma_method`),
         computed once until the model changes (analysis and reduction both need it).

@@ -45,7 +45,8 @@ import scipy.sparse as sp
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "FastFunction", "redundant_rows"]
+           "sparse_rank_deficiency", "sparse_deficiency_rcond", "to_scipy", "SparseFunction",
+           "FastFunction", "redundant_rows"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -506,6 +507,26 @@ def sparse_nonsingular(A, rtol: float = RANK_RTOL) -> bool:
         return True
     d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
     return bool(d is not None and (d.size == 0 or (d.max() > 0 and d.min() > rtol * n * d.max())))
+
+
+def sparse_deficiency_rcond(A, rtol: float = RANK_RTOL) -> tuple[int, float]:
+    """:func:`sparse_rank_deficiency` and :func:`sparse_rcond` from one LU factorization.
+
+    Example
+    -------
+    >>> import scipy.sparse as sp
+    >>> sparse_deficiency_rcond(sp.csc_matrix([[2.0, 0.0], [0.0, 1.0]]))
+    (0, 0.5)
+    """
+    n = A.shape[0]
+    if n == 0:
+        return 0, 1.0
+    d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
+    if d is None:
+        return 1, 0.0
+    if not d.size or d.max() == 0:
+        return n, 0.0
+    return max(int(np.sum(d <= rtol * n * d.max())), 0), float(d.min() / d.max())
 
 
 def sparse_rcond(A) -> float:

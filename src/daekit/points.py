@@ -133,14 +133,16 @@ class TestPoint:
         # differences; the later ones reach other parts of a model's domain
         return self.rng.uniform(a, b, size) if kind == "uniform" else self.rng.normal(a, b, size)
 
-    def evaluate(self, syms) -> np.ndarray:
-        out = np.empty(len(syms))
-        for k, s in enumerate(syms):
-            h = s.element_hash()
-            if h not in self.values:
-                self.values[h] = float(self._random(1)[0])
-            out[k] = self.values[h]
-        return out
+    def evaluate(self, syms, hashes=None) -> np.ndarray:
+        """Values of the scalar symbols ``syms`` (drawn where not set yet, in order);
+        ``hashes``: their element hashes, when the caller keeps them."""
+        if hashes is None:
+            hashes = [s.element_hash() for s in syms]
+        vals = self.values
+        for h in hashes:
+            if h not in vals:
+                vals[h] = float(self._random(1)[0])
+        return np.fromiter((vals[h] for h in hashes), dtype=float, count=len(hashes))
 
     def sibling(self, k: int) -> TestPoint:
         """Another test point with the same time, inputs and user values, and new random
@@ -190,14 +192,15 @@ class PointFunction:
     def __init__(self, model, expr: ca.SX) -> None:
         th = model.t.element_hash()
         self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        self.hashes = [s.element_hash() for s in self.syms]
         S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
         self.f = SparseFunction([model.t, S], expr)
 
     def sparse(self, pt: TestPoint) -> sp.csr_matrix:
-        return self.f(pt.t, pt.evaluate(self.syms))
+        return self.f(pt.t, pt.evaluate(self.syms, self.hashes))
 
     def dense(self, pt: TestPoint) -> np.ndarray:
-        return self.f.dense(pt.t, pt.evaluate(self.syms))
+        return self.f.dense(pt.t, pt.evaluate(self.syms, self.hashes))
 
 
 @dataclass

@@ -18,6 +18,7 @@ Example
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 from dataclasses import dataclass, field
@@ -255,6 +256,22 @@ class Model:
         self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
         self._cache: dict[str, object] = {}
         self.events: list[Event] = []
+
+    def with_equations(self, equations: list[Equation]) -> Model:
+        """A model with ``equations`` in place of this one's, sharing its variables (and their
+        derivative symbols), parameters, invariants and events; this model is not changed.
+        The reduction's amendments build on it.
+
+        >>> import daekit as dk
+        >>> m = dk.Model("m"); x = m.state("x"); _ = m.equation(m.der(x) + x, name="decay")
+        >>> m2 = m.with_equations([dk.model.Equation("decay", m.der(x) + 2 * x)])
+        >>> m2.equation_names, str(m.equations[0].expr), str(m2.equations[0].expr)
+        (['decay'], '(der(x)+x)', '(der(x)+(2.*x))')
+        """
+        new = copy.copy(self)
+        new.equations = list(equations)
+        new._cache = {}
+        return new
 
     # ------------------------------------------------------------------ declarations
     def _declare(self, name: str, kind: str, size: int, default=None) -> ca.SX:

@@ -418,8 +418,6 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
 
     Returns the expansion and a list of plain-language notes on the replaced equations.
     """
-    import copy as _copy
-
     from ..model import Equation
     from .differentiate import time_derivative
 
@@ -464,9 +462,7 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
             f"{names[l]!r} was replaced by the combination {' '.join(terms)}, in which the "
             "leading derivatives cancel (linear-combination method)"
         )
-        work = _copy.copy(work)
-        work.equations = new_eqs
-        work._cache = {}
+        work = work.with_equations(new_eqs)
         ex = expand(work, validate=False)
         ex.model = model
     return ex, notes

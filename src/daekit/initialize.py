@@ -275,8 +275,10 @@ class _SystemCache:
         self.args = [w, r.t, r.u, r.p]
         core = ca.vertcat(self.alg, self.inv)
         self.core = core
-        Jcore = ca.jacobian(core, w)
-        self.Jz = Jcore[: int(self.alg.numel()), nx:]  # d alg / d z (for settle)
+        # one Jacobian per block (CasADi's jacobian of the stacked rows costs more than both)
+        Jalg = ca.jacobian(self.alg, w)
+        Jcore = ca.vertcat(Jalg, ca.jacobian(self.inv, w)) if self.inv.numel() else Jalg
+        self.Jz = Jalg[:, nx:]  # d alg / d z (for settle)
         self.core_fun = FastFunction(ca.Function("core", self.args, [core, Jcore]))
         self.core_ccs = _ccs(self.core_fun.f.sparsity_out(1))
         self.v_fun = FastFunction(ca.Function("values", self.args, [self.V]))

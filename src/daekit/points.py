@@ -424,14 +424,14 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             break
         size = float(np.abs(d).max()) if d.size else 0.0
         alpha = min(1.0, radius / size) if size > 0 else 1.0
-        norm0 = float(np.sqrt(r @ r))
+        norm0 = _norm(r)
         dw = dc * d
         for _ in range(30):
             wn = w + alpha * dw
             hn = fun(wn)
             if finite(hn):
                 rn = merit(hn)
-                if float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
+                if _norm(rn) <= (1 - 1e-4 * alpha) * norm0 or rn.max() <= level(wn):
                     break
             alpha *= 0.5
         else:
@@ -440,6 +440,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+
+
+def _norm(v: np.ndarray) -> float:
+    """Euclidean norm of the finite ``v`` without overflow (residuals far from a solution
+    can exceed 1e154)."""
+    m = float(np.abs(v).max()) if v.size else 0.0
+    if m == 0.0 or not np.isfinite(m):
+        return m
+    u = v / m
+    return m * float(np.sqrt(u @ u))
 
 
 def _worst(h, dr) -> list[int]:

@@ -532,21 +532,30 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     """
     rng = np.random.default_rng(seed + 31)
     n = r.nx + r.nz
-    w = ca.SX.sym("w", n)
-    t_s = ca.SX.sym("t")
-    u_s = ca.SX.sym("u", r.nu)
-    G = ca.vertcat(ca.vec(r.alg), ca.vec(r.invariants) if r.invariants.numel() else ca.SX(0, 1))
-    G = ca.substitute([G], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
-                      [t_s, w, u_s, ca.DM(r.p_values)])[0]
-    f = FastFunction(ca.Function("g", [t_s, u_s, w], [G]))
-    fj = SparseFunction([t_s, u_s, w], ca.jacobian(G, w))
+    alg = ca.vec(ca.SX(r.alg))
+    inv = ca.vec(ca.SX(r.invariants)) if r.invariants.numel() else ca.SX(0, 1)
+    w = ca.vertcat(r.x, r.z)
+    t_s, u_s, p_s = r.t, r.u, r.p
+    if not (w.is_valid_input() and ca.vertcat(t_s, u_s, p_s).is_valid_input()):
+        w, t_s, u_s, p_s = (ca.SX.sym("w", n), ca.SX.sym("t"), ca.SX.sym("u", r.nu),
+                            ca.SX.sym("p", r.n_p))
+        alg, inv = ca.substitute([alg, inv], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
+                                 [t_s, w, u_s, p_s])
+    G = ca.vertcat(alg, inv)
+    # the parameters at their values are an input (no substitution into the expressions);
+    # one Jacobian per block (cheaper than of the stack)
+    J = ca.vertcat(ca.jacobian(alg, w), ca.jacobian(inv, w)) if inv.numel() else \
+        ca.jacobian(alg, w)
+    f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
+    fj = SparseFunction([t_s, u_s, w, p_s], J)
     jac = fj.dense if _is_dense(n, G.numel()) else fj
+    pv = np.asarray(r.p_values, dtype=float)
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
         w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
-        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x)[0],
-                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x))
+        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x, pv)[0],
+                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv))
         if st.consistent:
             return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
     return None

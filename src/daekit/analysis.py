@@ -381,6 +381,24 @@ def _components(inc) -> tuple[np.ndarray, np.ndarray]:
     """Connected components of the Sigma pattern as a bipartite graph (equations and unknowns
     linked by every entry, of any order): component label of each equation and unknown."""
     n_e, n_u = inc.n_equations, inc.n_unknowns
+    if n_e + n_u <= 400:  # small: union-find (SciPy's set-up costs more than the search)
+        parent = list(range(n_e + n_u))
+
+        def root(a: int) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        for i, j in zip(inc.rows.tolist(), inc.cols.tolist(), strict=True):
+            ra, rb = root(i), root(n_e + j)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+        # numbered in order of each component's first node, as connected_components does
+        first: dict[int, int] = {}
+        labels = np.array([first.setdefault(root(a), len(first)) for a in range(n_e + n_u)],
+                          dtype=np.int32)
+        return labels[:n_e], labels[n_e:]
     g = sp.csr_matrix((np.ones(len(inc.rows), np.int8), (inc.rows, n_e + inc.cols)),
                       shape=(n_e + n_u, n_e + n_u))
     _, labels = sp.csgraph.connected_components(g, directed=False)

@@ -184,7 +184,7 @@ def _easy_test(model: Model, pt: _Point) -> EasyTest:
     jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
     eq_names = model.equation_names
     if n <= EASY_DENSE_LIMIT:
-        check = _rank_check(jac, list(range(n)), list(range(n)))
+        check = _rank_check(jac.toarray(), list(range(n)), list(range(n)))
         rank, rcond = check.rank, check.rcond
         names = [eq_names[i] for i in check.deficient_rows]
     else:
@@ -280,6 +280,10 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
         v = float(jac[rows[0], int(cols[0])])
         ok = v != 0.0 and np.isfinite(v)
         return _RankCheck(rows, 1, int(ok), 1.0 if ok else 0.0, [] if ok else rows)
+    if not sp.issparse(jac):  # a small system's Jacobian, dense
+        info = rank_info(jac[np.ix_(rows, [int(j) for j in cols])])
+        return _RankCheck(rows, size, info.rank, info.rcond,
+                          [rows[k] for k in info.deficient_rows()])
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
         info = rank_info(sub)
@@ -912,7 +916,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         jac = jac_at(pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
-        checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        jd = jac.toarray() if n <= EASY_DENSE_LIMIT else jac  # small: dense block slices
+        checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
         if sing0:  # too big for the derivative array: say so before any further work
             _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
@@ -923,6 +928,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
             jac_c = _vanishing_removed(jac_at(pt), jac)
+            if n <= EASY_DENSE_LIMIT:
+                jac_c = jac_c.toarray()
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -937,6 +944,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 if not consistent_point(pt2, expansion).consistent:
                     continue
                 jac2 = _vanishing_removed(jac_at(pt2), jac)
+                if n <= EASY_DENSE_LIMIT:
+                    jac2 = jac2.toarray()
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)

@@ -27,8 +27,12 @@ fixed values and consistency conditions.
 
 Everything that depends only on the system (the vector of every named value as an expression,
 the name-to-row map, the CasADi functions of ``[alg; invariants]`` and of the values, their
-sparse Jacobians, the Hessian of the invariants) is made once and kept on the system; a call
-then only selects the rows its fixed values and guesses use.
+sparse Jacobians, the Hessian of the invariants) is made once and kept on the system, and so
+are the functions of the rows a call's fixed values and guesses use, per set of names (a sweep
+fixes the same names in every sample: its later calls build nothing); the parameters are inputs
+of those functions, not baked in. The CasADi functions are called through their raw buffers
+(:class:`daekit.numerics.FastFunction`). The rank analysis of the result (free, redundant and
+determined values) is made on first access to those fields of :class:`InitialValues`.
 
 Two implementations of the same method, chosen by the number of unknowns ``nx + nz``:
 

@@ -886,7 +886,17 @@ def _qp_min_norm(A, h, H, g) -> np.ndarray:
         dp = np.zeros(n)
         N = np.eye(n)
     if H is not None and N.shape[1]:
-        y = np.linalg.lstsq(N.T @ H @ N, -(N.T @ (H @ dp + g)), rcond=1e-12)[0]
+        M = N.T @ H @ N
+        lam, Q = np.linalg.eigh(0.5 * (M + M.T))
+        # directions of the null space where the objective has curvature, relative to the
+        # scale of H itself (not of the reduced matrix: where the guesses do not reach a
+        # direction, e.g. velocities when only positions are guessed, its curvature is
+        # rounding residue, which a relative cutoff would invert into huge steps); negative
+        # curvature (the constraints' curvature times multipliers of either sign) is no
+        # step direction either
+        keep = lam > 1e-12 * max(1.0, float(np.abs(H).max()))
+        Qk = Q[:, keep]
+        y = Qk @ ((Qk.T @ -(N.T @ (H @ dp + g))) / lam[keep])
         return dp + N @ y
     return dp
 

@@ -27,7 +27,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError, StructuralError
-from .wording import count
+from .wording import count, listing
 
 __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
            "select_name", "fit_elements", "NameNotFoundError"]
@@ -880,25 +880,25 @@ class Model:
         if over_e:
             if over_v:
                 lines.append(
-                    f"  Over-determined: the equations {_short(over_e)} involve only the unknowns "
-                    f"{_short(over_v)}, too few for them; remove or merge an equation there, or "
+                    f"  Over-determined: the equations {listing(over_e, 12)} involve only the unknowns "
+                    f"{listing(over_v, 12)}, too few for them; remove or merge an equation there, or "
                     "an unknown is missing."
                 )
             else:
                 lines.append(
-                    f"  Over-determined: the equations {_short(over_e)} involve no unknowns "
+                    f"  Over-determined: the equations {listing(over_e, 12)} involve no unknowns "
                     "(only time, inputs or parameters): they cannot be solved for anything; "
                     "remove them, or declare the unknown they should determine."
                 )
         if under_v and under_e:
             lines.append(
-                f"  Under-determined: the unknowns {_short(under_v)} appear only in the equations "
-                f"{_short(under_e)}, too few to determine them; add an equation, or declare one "
+                f"  Under-determined: the unknowns {listing(under_v, 12)} appear only in the equations "
+                f"{listing(under_e, 12)}, too few to determine them; add an equation, or declare one "
                 "of them as a control or parameter."
             )
         elif under_v:
             lines.append(
-                f"  Under-determined: the unknowns {_short(under_v)} appear in no equation; add "
+                f"  Under-determined: the unknowns {listing(under_v, 12)} appear in no equation; add "
                 "an equation for them, or remove them, or declare them as controls or parameters."
             )
         raise StructuralError(
@@ -918,12 +918,6 @@ class Model:
 def _count(n: int, noun: str) -> str:
     """``"1 equation"``, ``"3 equations"`` (:func:`daekit.wording.count`)."""
     return count(n, noun)
-
-
-def _short(names: list[str], limit: int = 12) -> str:
-    if len(names) <= limit:
-        return ", ".join(repr(n) for n in names)
-    return ", ".join(repr(n) for n in names[:limit]) + f", ... ({len(names)} in all)"
 
 
 def _zero_entries(sx: ca.SX) -> list[int]:

@@ -19,7 +19,7 @@ import scipy.sparse as sp
 
 import daekit as dk
 from daekit import numerics
-from daekit.analysis import _components, _derivative_array
+from daekit.analysis.core import _components, _derivative_array
 from daekit.model import Incidence
 from daekit.points import TestPoint, consistent_point
 from daekit.reduction.differentiate import expand

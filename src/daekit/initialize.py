@@ -27,8 +27,12 @@ fixed values and consistency conditions.
 
 Everything that depends only on the system (the vector of every named value as an expression,
 the name-to-row map, the CasADi functions of ``[alg; invariants]`` and of the values, their
-sparse Jacobians, the Hessian of the invariants) is made once and kept on the system; a call
-then only selects the rows its fixed values and guesses use.
+sparse Jacobians, the Hessian of the invariants) is made once and kept on the system, and so
+are the functions of the rows a call's fixed values and guesses use, per set of names (a sweep
+fixes the same names in every sample: its later calls build nothing); the parameters are inputs
+of those functions, not baked in. The CasADi functions are called through their raw buffers
+(:class:`daekit.numerics.FastFunction`). The rank analysis of the result (free, redundant and
+determined values) is made on first access to those fields of :class:`InitialValues`.
 
 Two implementations of the same method, chosen by the number of unknowns ``nx + nz``:
 
@@ -118,6 +122,11 @@ class InitialValues:
         their Jacobian; systems below 300 unknowns). Empty when nothing is determined.
 
     ``init["p"]`` returns the values of ``p`` as an array, ``init["p[0]"]`` a float.
+
+    ``free``, ``dof``, ``dof_names``, ``redundant``, ``determined`` and ``notes`` come from a
+    rank analysis at the solution that is made on first access to any of them (a sweep that
+    only simulates from the values does not pay for it); the result is the same whenever it
+    is made.
     """
 
     t0: float
@@ -137,6 +146,33 @@ class InitialValues:
     fixed: list[str] = field(default_factory=list)
     dof_names: list[str] = field(default_factory=list)
     determined: list[str] = field(default_factory=list)
+    _deferred: object = field(default=None, repr=False, compare=False)
+
+    def __getattribute__(self, name: str):
+        if name in _DEFERRED:
+            d = object.__getattribute__(self, "__dict__")
+            if d.get("_deferred") is not None:
+                object.__getattribute__(self, "_resolve")()
+        return object.__getattribute__(self, name)
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in _DEFERRED and self.__dict__.get("_deferred") is not None:
+            self._resolve()
+        object.__setattr__(self, name, value)
+
+    def _resolve(self) -> None:
+        """Run the deferred analysis (free, redundant, determined values) once."""
+        d = self.__dict__
+        make = d.get("_deferred")
+        if make is None:
+            return
+        found = make()
+        d.update(found)
+        d["_deferred"] = None
+
+    def __getstate__(self) -> dict:
+        self._resolve()
+        return dict(self.__dict__)
 
     def __getitem__(self, name: str):
         from .model import select_name
@@ -152,6 +188,10 @@ class InitialValues:
             f"InitialValues(t0={self.t0:g}: {shown}; dof={self.dof}, "
             f"residual={self.residual:.1e})"
         )
+
+
+#: InitialValues fields filled by the deferred analysis.
+_DEFERRED = frozenset({"free", "dof", "dof_names", "redundant", "determined", "notes"})
 
 
 def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = None
@@ -239,8 +279,10 @@ class _SystemCache:
         self.args = [w, r.t, r.u, r.p]
         core = ca.vertcat(self.alg, self.inv)
         self.core = core
-        Jcore = ca.jacobian(core, w)
-        self.Jz = Jcore[: int(self.alg.numel()), nx:]  # d alg / d z (for settle)
+        # one Jacobian per block (CasADi's jacobian of the stacked rows costs more than both)
+        Jalg = ca.jacobian(self.alg, w)
+        Jcore = ca.vertcat(Jalg, ca.jacobian(self.inv, w)) if self.inv.numel() else Jalg
+        self.Jz = Jalg[:, nx:]  # d alg / d z (for settle)
         self.core_fun = FastFunction(ca.Function("core", self.args, [core, Jcore]))
         self.core_ccs = _ccs(self.core_fun.f.sparsity_out(1))
         self.v_fun = FastFunction(ca.Function("values", self.args, [self.V]))
@@ -777,43 +819,52 @@ def initialize(
             hv_held = None
         _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_held)
 
-    found = None
-    if use_sparse:
-        # free states and redundant fixed values from a sparse basis of the consistency rows
-        found = _sparse_free_redundant(J, n_alg, n_inv, nx, list(r.x_names), fixed_names)
-        if found is None:  # degenerate (rank-deficient) consistency rows: dense analysis
-            J = J.toarray()
-    if found is not None:
-        free, redundant = found
-    else:
-        # redundant fixed values: rows of J dependent on the rows before them
-        redundant = _dependent_fixed(J, n_alg + n_inv, fixed_names)
-        free = _free_states(r, J[: n_alg + n_inv], nx, set(fixed_names))
-
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
     for _, ri, v in fixed_items:
         k = int(sc.w_pos[ri])
         if k >= 0:
             wv[k] = v
+    wf = wv.copy()
 
-    determined, notes = [], []
-    if not use_sparse and fixed_items:
-        pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
-        determined, notes = _determined(r, wv, J, hval, scale, set(fixed_names), pinned,
-                                        {nm for nm, _, _ in guess_items})
+    def dof_analysis() -> dict:
+        """Free states, redundant fixed values, determined states (deferred: made on first
+        access to any of them)."""
+        Jd = J
+        found = None
+        if use_sparse:
+            # free states and redundant fixed values from a sparse basis of the consistency
+            # rows
+            found = _sparse_free_redundant(Jd, n_alg, n_inv, nx, list(r.x_names), fixed_names)
+            if found is None:  # degenerate (rank-deficient) consistency rows: dense analysis
+                Jd = Jd.toarray()
+        if found is not None:
+            free, redundant = found
+        else:
+            # redundant fixed values: rows of J dependent on the rows before them
+            redundant = _dependent_fixed(Jd, n_alg + n_inv, fixed_names)
+            free = _free_states(r, Jd[: n_alg + n_inv], nx, set(fixed_names))
+        determined, notes = [], []
+        if not use_sparse and fixed_items:
+            pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
+            determined, notes = _determined(r, wf, Jd, hval, scale, set(fixed_names), pinned,
+                                            {nm for nm, _, _ in guess_items})
+        # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
+        # order; the free values are those of it that were not fixed (also under another
+        # name)
+        dof_names = [nm for nm in r.x_names if nm in free]
+        fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
+        free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
+        return {"free": free_only, "dof": len(dof_names), "dof_names": dof_names,
+                "redundant": redundant, "determined": determined, "notes": notes}
+
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
     values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
-    # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
-    # order; the free values are those of it that were not fixed (also under another name)
-    dof_names = [nm for nm in r.x_names if nm in free]
-    fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
-    free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
     return InitialValues(
-        t0, x0, z0, u0, pv, values, free_only, len(dof_names), redundant, cons, it,
-        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=dof_names,
-        determined=determined, notes=notes,
+        t0, x0, z0, u0, pv, values, [], 0, [], cons, it,
+        list(r.x_names), list(r.z_names), fixed=list(fixed_names), dof_names=[],
+        determined=[], notes=[], _deferred=dof_analysis,
     )
 
 
@@ -894,7 +945,17 @@ def _qp_min_norm(A, h, H, g) -> np.ndarray:
         dp = np.zeros(n)
         N = np.eye(n)
     if H is not None and N.shape[1]:
-        y = np.linalg.lstsq(N.T @ H @ N, -(N.T @ (H @ dp + g)), rcond=1e-12)[0]
+        M = N.T @ H @ N
+        lam, Q = np.linalg.eigh(0.5 * (M + M.T))
+        # directions of the null space where the objective has curvature, relative to the
+        # scale of H itself (not of the reduced matrix: where the guesses do not reach a
+        # direction, e.g. velocities when only positions are guessed, its curvature is
+        # rounding residue, which a relative cutoff would invert into huge steps); negative
+        # curvature (the constraints' curvature times multipliers of either sign) is no
+        # step direction either
+        keep = lam > 1e-12 * max(1.0, float(np.abs(H).max()))
+        Qk = Q[:, keep]
+        y = Qk @ ((Qk.T @ -(N.T @ (H @ dp + g))) / lam[keep])
         return dp + N @ y
     return dp
 

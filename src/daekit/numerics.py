@@ -45,8 +45,8 @@ import scipy.sparse as sp
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
-           "sparse_rank_deficiency", "to_scipy", "SparseFunction", "FastFunction", "redundant_rows",
-           "VANISH", "vanishing_removed"]
+           "sparse_rank_deficiency", "sparse_deficiency_rcond", "to_scipy", "SparseFunction",
+           "FastFunction", "redundant_rows", "VANISH", "vanishing_removed"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -63,7 +63,7 @@ ROW_NOISE = 1e-20
 #: sparse): the same arithmetic, without SciPy's per-call overhead.
 DENSE_EQUILIBRATE = 40000
 #: Curtis--Reid's normal equations up to this size (rows plus columns) are solved densely.
-DENSE_CR = 400
+DENSE_CR = 150
 
 
 def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:
@@ -110,6 +110,13 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
         A, issparse = A.toarray(), False
     if not issparse:
         return _equilibrate_dense(A)
+    return _equilibrate_sparse(A)
+
+
+def _equilibrate_reference(A) -> tuple[np.ndarray, np.ndarray]:
+    """The plain formulation of :func:`equilibrate` (products of the scaled matrix formed in
+    each sweep); kept as the reference the exponent formulations are checked against."""
+    issparse = sp.issparse(A)
     if issparse:
         B = abs(sp.csr_matrix(A, dtype=float))
         B.data[~np.isfinite(B.data)] = 0.0
@@ -144,6 +151,78 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     lr, lc = _curtis_reid(keep)
     dr, dc = np.exp2(np.round(lr)), np.exp2(np.round(lc))
     return _ruiz(B, dr, dc, issparse)
+
+
+def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`equilibrate` of a sparse matrix in the exponents of its nonzeros, as
+    :func:`_equilibrate_dense`: each Ruiz sweep is a segmented maximum over the nonzeros of
+    each row (CSR order) and column (a fixed permutation), no sparse products."""
+    B = sp.csr_matrix(A, dtype=float, copy=True)
+    B.sum_duplicates()
+    m, n = B.shape
+    if m == 0 or n == 0:
+        return np.ones(m), np.ones(n)
+    data = np.abs(B.data)
+    data[~np.isfinite(data)] = 0.0
+    rows = np.repeat(np.arange(m), np.diff(B.indptr))
+    cols = B.indices
+    rmax0 = np.zeros(m)
+    np.maximum.at(rmax0, rows, data)
+    keep = data > ROW_NOISE * rmax0[rows]  # also drops the zeros
+    rows, cols, data = rows[keep], cols[keep], data[keep]
+    L = np.log2(data)
+    seg = _Segments(m, n, rows, cols)
+    e = _ruiz_log_sparse(L, seg, np.zeros(m), np.zeros(n))
+    big = L + e[0][rows] + e[1][cols] > _LOG2_NOISE
+    lr, lc = _curtis_reid_log(m, n, rows[big], cols[big], L[big])
+    er, ec = _ruiz_log_sparse(L, seg, np.round(lr), np.round(lc))
+    return np.exp2(er), np.exp2(ec)
+
+
+class _Segments:
+    """Row and column maxima over the nonzeros ``(rows, cols)`` (``rows`` sorted)."""
+
+    def __init__(self, m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> None:
+        self.m, self.n = m, n
+        self.rows, self.cols = rows, cols
+        self.r_start, self.r_has = _starts(rows, m)
+        self.c_perm = np.argsort(cols, kind="stable")
+        self.c_start, self.c_has = _starts(cols[self.c_perm], n)
+
+    def maxima(self, S: np.ndarray) -> np.ndarray:
+        """``[row maxima, column maxima]`` of the values ``S`` (``-inf`` for empty ones)."""
+        out = np.full(self.m + self.n, -np.inf)
+        if S.size:
+            out[: self.m][self.r_has] = np.maximum.reduceat(S, self.r_start)
+            out[self.m:][self.c_has] = np.maximum.reduceat(S[self.c_perm], self.c_start)
+        return out
+
+
+def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Start of each nonempty group of the sorted ``sorted_idx`` and which of ``0..k-1`` have
+    one."""
+    has = np.zeros(k, dtype=bool)
+    if not sorted_idx.size:
+        return np.zeros(0, dtype=np.int64), has
+    first = np.ones(sorted_idx.size, dtype=bool)
+    first[1:] = sorted_idx[1:] != sorted_idx[:-1]
+    has[sorted_idx[first]] = True
+    return np.nonzero(first)[0], has
+
+
+def _ruiz_log_sparse(L, seg: _Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_ruiz_log` over the nonzeros of a sparse matrix."""
+    m = seg.m
+    for _ in range(RUIZ_ITERATIONS):
+        S = L + er[seg.rows] + ec[seg.cols]
+        mx = seg.maxima(S)
+        f = -np.round(0.5 * mx)
+        f[~np.isfinite(f)] = 0.0
+        if not f.any():
+            break
+        er = er + f[:m]
+        ec = ec + f[m:]
+    return er, ec
 
 
 def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
@@ -468,6 +547,26 @@ def sparse_nonsingular(A, rtol: float = RANK_RTOL) -> bool:
         return True
     d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
     return bool(d is not None and (d.size == 0 or (d.max() > 0 and d.min() > rtol * n * d.max())))
+
+
+def sparse_deficiency_rcond(A, rtol: float = RANK_RTOL) -> tuple[int, float]:
+    """:func:`sparse_rank_deficiency` and :func:`sparse_rcond` from one LU factorization.
+
+    Example
+    -------
+    >>> import scipy.sparse as sp
+    >>> sparse_deficiency_rcond(sp.csc_matrix([[2.0, 0.0], [0.0, 1.0]]))
+    (0, 0.5)
+    """
+    n = A.shape[0]
+    if n == 0:
+        return 0, 1.0
+    d = _splu_pivots(equilibrated(sp.csc_matrix(A)))
+    if d is None:
+        return 1, 0.0
+    if not d.size or d.max() == 0:
+        return n, 0.0
+    return max(int(np.sum(d <= rtol * n * d.max())), 0), float(d.min() / d.max())
 
 
 def sparse_rcond(A) -> float:

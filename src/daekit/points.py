@@ -30,6 +30,7 @@ Example
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import casadi as ca
@@ -52,8 +53,10 @@ DENSE_UNKNOWNS = 300
 POINT_TOL = 1e-10
 
 
-def check_point(model, point) -> dict[str, np.ndarray]:
-    """The user's ``point`` as ``{name: values}``, each checked for type, size, finiteness.
+def check_point(model, point, error: type[Exception] = ModelError) -> dict[str, np.ndarray]:
+    """The user's ``point`` as ``{name: values}``, each checked for type, size, finiteness:
+    the one check of a ``point=`` argument (``analyze``, ``reduce_index``); ``error`` is the
+    class the caller raises.
 
     >>> import daekit as dk
     >>> m = dk.Model("m"); p = m.state("p", 2)
@@ -63,31 +66,31 @@ def check_point(model, point) -> dict[str, np.ndarray]:
     if point is None:
         return {}
     if not isinstance(point, dict):
-        raise ModelError(
+        raise error(
             f"model {model.name!r}: point must be a dict of values by name, e.g. "
             f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"
         )
     out = {}
     for name, val in point.items():
         if not isinstance(name, str):
-            raise ModelError(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
+            raise error(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
         size = 1 if name == "t" else len(model.resolve(name))
         try:
             arr = np.asarray(val, dtype=float).ravel()
         except (TypeError, ValueError):
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric; give "
-                + ("a number" if size == 1 else f"a number or {size} numbers")
+            raise error(
+                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric: it must be numbers ("
+                + ("a number" if size == 1 else f"a number or {size} numbers") + ")"
             ) from None
         if arr.size == 1:
             arr = np.full(size, arr[0])
         if arr.size != size:
-            raise ModelError(
+            raise error(
                 f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
                 f"has {count(size, 'element')}; give {count(size, 'value')} (or one for all)"
             )
         if not np.all(np.isfinite(arr)):
-            raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
+            raise error(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
         out[name] = arr
     return out
 
@@ -132,14 +135,16 @@ class TestPoint:
         # differences; the later ones reach other parts of a model's domain
         return self.rng.uniform(a, b, size) if kind == "uniform" else self.rng.normal(a, b, size)
 
-    def evaluate(self, syms) -> np.ndarray:
-        out = np.empty(len(syms))
-        for k, s in enumerate(syms):
-            h = s.element_hash()
-            if h not in self.values:
-                self.values[h] = float(self._random(1)[0])
-            out[k] = self.values[h]
-        return out
+    def evaluate(self, syms, hashes=None) -> np.ndarray:
+        """Values of the scalar symbols ``syms`` (drawn where not set yet, in order);
+        ``hashes``: their element hashes, when the caller keeps them."""
+        if hashes is None:
+            hashes = [s.element_hash() for s in syms]
+        vals = self.values
+        for h in hashes:
+            if h not in vals:
+                vals[h] = float(self._random(1)[0])
+        return np.fromiter((vals[h] for h in hashes), dtype=float, count=len(hashes))
 
     def sibling(self, k: int) -> TestPoint:
         """Another test point with the same time, inputs and user values, and new random
@@ -208,14 +213,15 @@ class PointFunction:
     def __init__(self, model, expr: ca.SX) -> None:
         th = model.t.element_hash()
         self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        self.hashes = [s.element_hash() for s in self.syms]
         S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
         self.f = SparseFunction([model.t, S], expr)
 
     def sparse(self, pt: TestPoint) -> sp.csr_matrix:
-        return self.f(pt.t, pt.evaluate(self.syms))
+        return self.f(pt.t, pt.evaluate(self.syms, self.hashes))
 
     def dense(self, pt: TestPoint) -> np.ndarray:
-        return self.f.dense(pt.t, pt.evaluate(self.syms))
+        return self.f.dense(pt.t, pt.evaluate(self.syms, self.hashes))
 
 
 @dataclass
@@ -391,7 +397,10 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             return Jv * dr[:, None] * dc[None, :]
     else:
         def scaled(Jv):
-            return sp.diags(dr) @ Jv @ sp.diags(dc)
+            Jv = sp.csc_matrix(Jv)
+            cols = np.repeat(np.arange(Jv.shape[1]), np.diff(Jv.indptr))
+            return sp.csc_matrix((Jv.data * dr[Jv.indices] * dc[cols], Jv.indices, Jv.indptr),
+                                 shape=Jv.shape)
     J = jac(w)
     Jdata = J if dense else J.data
     if not (np.all(np.isfinite(h)) and np.all(np.isfinite(Jdata))):
@@ -452,15 +461,14 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             break
         size = float(np.abs(d).max()) if d.size else 0.0
         alpha = min(1.0, radius / size) if size > 0 else 1.0
-        norm0 = float(np.sqrt(r @ r))
+        norm0 = _norm(r)
         dw = dc * d
         for _ in range(30):
             wn = w + alpha * dw
             hn = fun(wn)
             if finite(hn):
                 rn = merit(hn)
-                if (float(np.sqrt(rn @ rn)) <= (1 - 1e-4 * alpha) * norm0
-                        or np.all(rn <= level(wn, J))):
+                if _norm(rn) <= (1 - 1e-4 * alpha) * norm0 or np.all(rn <= level(wn, J)):
                     break
             alpha *= 0.5
         else:
@@ -469,6 +477,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+
+
+def _norm(v: np.ndarray) -> float:
+    """Euclidean norm of the finite ``v`` without overflow (residuals far from a solution
+    can exceed 1e154)."""
+    m = float(np.abs(v).max()) if v.size else 0.0
+    if m == 0.0 or not np.isfinite(m):
+        return m
+    u = v / m
+    return m * float(np.sqrt(u @ u))
 
 
 def _worst(h, dr) -> list[int]:
@@ -481,6 +499,36 @@ def _worst(h, dr) -> list[int]:
 def _is_dense(n: int, m: int) -> bool:
     """Whether Gauss--Newton on ``m`` equations in ``n`` unknowns uses dense linear algebra."""
     return n <= DENSE_UNKNOWNS and m <= 4 * DENSE_UNKNOWNS
+
+
+_KKT = threading.local()  # the last KKT pattern, per thread
+
+
+def _kkt(J: sp.csc_matrix, mu: float) -> sp.csc_matrix:
+    """``[[I, J^T], [J, -mu I]]`` (CSC) with its pattern assembled once per pattern of ``J``
+    (the iterations of one Gauss--Newton run share it): each call only places the values."""
+    J.sort_indices()
+    m, n = J.shape
+    key = (m, n, J.nnz, J.indptr.tobytes(), J.indices.tobytes())
+    c = _KKT.__dict__
+    if c.get("key") != key:
+        # markers: 1..nnz the entries of J, nnz+1..2 nnz those of J^T, -1 the identity,
+        # -2 the -mu diagonal
+        nnz = J.nnz
+        Jm = sp.csc_matrix((np.arange(1, nnz + 1, dtype=float), J.indices, J.indptr), shape=(m, n))
+        Jt = sp.csc_matrix(Jm.T)
+        Jt.data = Jt.data + nnz
+        K = sp.bmat([[-sp.identity(n, format="csc"), Jt], [Jm, -2 * sp.identity(m)]],
+                    format="csc")
+        K.sort_indices()
+        mk = K.data.astype(np.int64)
+        c.update(key=key, K=K, src=np.where(mk > nnz, mk - nnz - 1, mk - 1),
+                 ident=mk == -1, reg=mk == -2, nnz=nnz)
+    vals = J.data[np.clip(c["src"], 0, max(c["nnz"] - 1, 0))] if c["nnz"] else np.zeros(
+        c["src"].size)
+    vals = np.where(c["ident"], 1.0, np.where(c["reg"], -mu, vals))
+    K = c["K"]
+    return sp.csc_matrix((vals, K.indices, K.indptr), shape=K.shape)
 
 
 def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
@@ -496,7 +544,7 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     # the augmented (quasi-definite) system [[I, J^T], [J, -mu I]] [d; y] = [0; -h]: its
     # sparse LU stays linear in the size for chains and meshes (J J^T may fill in)
     mu = 1e-12
-    K = sp.bmat([[sp.identity(n, format="csc"), J.T], [J, -mu * sp.identity(m)]], format="csc")
+    K = _kkt(sp.csc_matrix(J), mu)
     try:
         lu = sp.linalg.splu(K, permc_spec="COLAMD")
     except RuntimeError:
@@ -521,21 +569,30 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     """
     rng = np.random.default_rng(seed + 31)
     n = r.nx + r.nz
-    w = ca.SX.sym("w", n)
-    t_s = ca.SX.sym("t")
-    u_s = ca.SX.sym("u", r.nu)
-    G = ca.vertcat(ca.vec(r.alg), ca.vec(r.invariants) if r.invariants.numel() else ca.SX(0, 1))
-    G = ca.substitute([G], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
-                      [t_s, w, u_s, ca.DM(r.p_values)])[0]
-    f = FastFunction(ca.Function("g", [t_s, u_s, w], [G]))
-    fj = SparseFunction([t_s, u_s, w], ca.jacobian(G, w))
+    alg = ca.vec(ca.SX(r.alg))
+    inv = ca.vec(ca.SX(r.invariants)) if r.invariants.numel() else ca.SX(0, 1)
+    w = ca.vertcat(r.x, r.z)
+    t_s, u_s, p_s = r.t, r.u, r.p
+    if not (w.is_valid_input() and ca.vertcat(t_s, u_s, p_s).is_valid_input()):
+        w, t_s, u_s, p_s = (ca.SX.sym("w", n), ca.SX.sym("t"), ca.SX.sym("u", r.nu),
+                            ca.SX.sym("p", r.n_p))
+        alg, inv = ca.substitute([alg, inv], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
+                                 [t_s, w, u_s, p_s])
+    G = ca.vertcat(alg, inv)
+    # the parameters at their values are an input (no substitution into the expressions);
+    # one Jacobian per block (cheaper than of the stack)
+    J = ca.vertcat(ca.jacobian(alg, w), ca.jacobian(inv, w)) if inv.numel() else \
+        ca.jacobian(alg, w)
+    f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
+    fj = SparseFunction([t_s, u_s, w, p_s], J)
     jac = fj.dense if _is_dense(n, G.numel()) else fj
+    pv = np.asarray(r.p_values, dtype=float)
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
         w0 = rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n)
-        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x)[0],
-                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x), rescale=True)
+        wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x, pv)[0],
+                              w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv))
         if st.consistent:
             return tv, wv[: r.nx], wv[r.nx:], uv, np.asarray(r.p_values, dtype=float)
     return None

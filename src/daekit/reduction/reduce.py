@@ -444,8 +444,6 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
 
     Returns the expansion and a list of plain-language notes on the replaced equations.
     """
-    import copy as _copy
-
     from ..model import Equation
     from .differentiate import time_derivative
 
@@ -490,9 +488,7 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
             f"{names[l]!r} was replaced by the combination {' '.join(terms)}, in which the "
             "leading derivatives cancel (linear-combination method)"
         )
-        work = _copy.copy(work)
-        work.equations = new_eqs
-        work._cache = {}
+        work = work.with_equations(new_eqs)
         ex = expand(work, validate=False)
         ex.model = model
     return ex, notes
@@ -574,7 +570,24 @@ def _singular_rows(A: sp.csc_matrix):
     if not dm.is_square_nonsingular:
         return sorted(set(dm.over_rows) | set(dm.under_rows))
     A = A.tocsr()
-    for rows, cols in block_triangular(n, coo.row, coo.col, dm.row_match):
+    blocks = block_triangular(n, coo.row, coo.col, dm.row_match)
+    # scalar blocks all at once: singular exactly where the entry is zero (or not finite)
+    one = [(int(rows[0]), int(cols[0])) for rows, cols in blocks if len(rows) == 1]
+    zero_rows: set[int] = set()
+    if one:
+        r1, c1 = np.array(one).T
+        vals = np.asarray(A[r1, c1]).ravel()
+        zero_rows = set(r1[~(np.isfinite(vals) & (vals != 0))].tolist())
+    for rows, cols in blocks:
+        if len(rows) == 1:
+            if int(rows[0]) in zero_rows:
+                return [int(rows[0])]
+            continue
+        if len(rows) <= 16:  # small: the dense SVD at once (no sparse machinery per block)
+            bad = _dense_singular_rows(A[rows][:, cols].toarray(), np.asarray(rows))
+            if bad is not None:
+                return bad
+            continue
         blk = A[rows][:, cols]
         if _lu_nonsingular(blk):
             continue

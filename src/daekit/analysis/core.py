@@ -31,23 +31,22 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import ModelError
-from .model import Model
-from .numerics import (
+from ..errors import ModelError
+from ..model import Model
+from ..numerics import (
     DENSE_LIMIT,
     RANK_RTOL,  # noqa: F401 - re-exported (older imports)
     VANISH,  # noqa: F401 - re-exported
     FastFunction,
     rank_info,
-    sparse_rank_deficiency,
-    sparse_rcond,
+    sparse_deficiency_rcond,
     vanishing_removed,
 )
-from .points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
-from .structure import block_triangular, dulmage_mendelsohn, structural_index
-from .structure.sigma import NoTransversal
-from .threads import blas_threads, limit_blas_threads
-from .wording import count
+from ..points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
+from ..structure import block_triangular, dulmage_mendelsohn, structural_index
+from ..structure.sigma import NoTransversal
+from ..threads import blas_threads, limit_blas_threads
+from ..wording import derivative_name, listing
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
            "is_index1", "derivative_array_dof"]
@@ -190,7 +189,7 @@ def _easy_test(model: Model, pt: _Point) -> EasyTest:
     jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
     eq_names = model.equation_names
     if n <= EASY_DENSE_LIMIT:
-        check = _rank_check(jac, list(range(n)), list(range(n)))
+        check = _rank_check(jac.toarray(), list(range(n)), list(range(n)))
         rank, rcond = check.rank, check.rcond
         names = [eq_names[i] for i in check.deficient_rows]
     else:
@@ -286,14 +285,18 @@ def _rank_check(jac: sp.csr_matrix, rows, cols) -> _RankCheck:
         v = float(jac[rows[0], int(cols[0])])
         ok = v != 0.0 and np.isfinite(v)
         return _RankCheck(rows, 1, int(ok), 1.0 if ok else 0.0, [] if ok else rows)
+    if not sp.issparse(jac):  # a small system's Jacobian, dense
+        info = rank_info(jac[np.ix_(rows, [int(j) for j in cols])])
+        return _RankCheck(rows, size, info.rank, info.rcond,
+                          [rows[k] for k in info.deficient_rows()])
     sub = jac[rows][:, [int(j) for j in cols]]
     if size <= DENSE_LIMIT:
         info = rank_info(sub)
         return _RankCheck(rows, size, info.rank, info.rcond,
                           [rows[k] for k in info.deficient_rows()])
-    small = sparse_rank_deficiency(sub)
+    small, rc = sparse_deficiency_rcond(sub)
     if small == 0:
-        return _RankCheck(rows, size, size, sparse_rcond(sub), [])
+        return _RankCheck(rows, size, size, rc, [])
     return _RankCheck(rows, size, size - small, 0.0, rows)
 
 
@@ -387,6 +390,24 @@ def _components(inc) -> tuple[np.ndarray, np.ndarray]:
     """Connected components of the Sigma pattern as a bipartite graph (equations and unknowns
     linked by every entry, of any order): component label of each equation and unknown."""
     n_e, n_u = inc.n_equations, inc.n_unknowns
+    if n_e + n_u <= 400:  # small: union-find (SciPy's set-up costs more than the search)
+        parent = list(range(n_e + n_u))
+
+        def root(a: int) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        for i, j in zip(inc.rows.tolist(), inc.cols.tolist(), strict=True):
+            ra, rb = root(i), root(n_e + j)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+        # numbered in order of each component's first node, as connected_components does
+        first: dict[int, int] = {}
+        labels = np.array([first.setdefault(root(a), len(first)) for a in range(n_e + n_u)],
+                          dtype=np.int32)
+        return labels[:n_e], labels[n_e:]
     g = sp.csr_matrix((np.ones(len(inc.rows), np.int8), (inc.rows, n_e + inc.cols)),
                       shape=(n_e + n_u, n_e + n_u))
     _, labels = sp.csgraph.connected_components(g, directed=False)
@@ -444,10 +465,10 @@ def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> Model
     eq_names = model.equation_names
     part = (f"the connected part of the model that contains them (equations linked by shared "
             f"unknowns) has {len(rows)} equations (e.g. "
-            f"{_short([eq_names[i] for i in rows], 6)}), too many for a numeric check of its "
+            f"{listing([eq_names[i] for i in rows], 6)}), too many for a numeric check of its "
             f"derivative array (limit {NUMERIC_LIMIT}).")
     if singular:
-        head = (f"structural analysis fails in the equations {_short(singular)} (their block "
+        head = (f"structural analysis fails in the equations {listing(singular)} (their block "
                 "of the system Jacobian is singular at the test point), and ")
         fix = (" If the singularity is an accident of the random test point, give a point "
                f"({what}(model, point={{...}})); otherwise rewrite those equations so that "
@@ -458,11 +479,6 @@ def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> Model
         fix = (" Use dk.analyze(model): it needs the derivative array only where structural "
                "analysis fails.")
     return ModelError(f"model {model.name!r}: {what}: {head}{part}{fix}")
-
-
-def _short(names: list[str], limit: int = 10) -> str:
-    shown = ", ".join(repr(n) for n in names[:limit])
-    return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")
 
 
 def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
@@ -525,7 +541,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         if grown["nodes"] > ARRAY_NODES:
             raise ModelError(
                 f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
-                f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+                f"equations {listing([eq_names[i] for i in rows], 6)} is still not enough at "
                 f"level {k - 1} and its expressions grow beyond {ARRAY_NODES} nodes (each "
                 "differentiation multiplies them); the equations may not determine their "
                 "unknowns at the test points, or factors such as sin(x) times an equation "
@@ -534,7 +550,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             )
         raise ModelError(
             f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
-            f"equations {_short([eq_names[i] for i in rows], 6)} is still not enough at "
+            f"equations {listing([eq_names[i] for i in rows], 6)} is still not enough at "
             f"level {k} and grows beyond {ARRAY_LIMIT} rows; give a point where these "
             "equations are regular (point=...), or check that they determine their "
             "unknowns at all"
@@ -550,26 +566,49 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         arr = ca.vertcat(*levels[: k + 1])
         at = PointFunction(model, ca.jacobian(arr, ca.vertcat(X, X_s)))  # made once
         tgt = np.array(target[:nc], dtype=bool)
+        bound = None  # the ranks at a random point: no consistent point has higher ones
         if k == 0 or pt.status is None:
             at_random = at.dense(pt)
         else:
             if state["rnd"] is None:
                 state["rnd"] = pt.random_copy()
             at_random = at.dense(state["rnd"])
-        points, state["other"] = _array_points(pt, arr, state["other"])
+            if np.isfinite(at_random).all():
+                bound = (numeric_rank(at_random[:, :nc])[0],
+                         numeric_rank(at_random[:, :nc][:, ~tgt])[0])
         r_all = r_rest = -1
         fulls = []
-        for q in points:
+
+        def rank_at(q) -> None:
+            nonlocal r_all, r_rest
             # entries vanishing on the solutions: compared with a point near q in its units
             ref = (at.dense(q.perturbed()) if q.status is not None and q.status.consistent
                    else at_random)
             full = _vanishing_removed_dense(at.dense(q), ref)
-            _require_finite_dense(full, lambda r: _der_eq(eq_names[rows[r % len(rows)]],
-                                                          r // len(rows)))
+            _require_finite_dense(
+                full, lambda r: derivative_name(eq_names[rows[r % len(rows)]], r // len(rows)))
             jac = full[:, :nc]
             r_all = max(r_all, numeric_rank(jac)[0])
             r_rest = max(r_rest, numeric_rank(jac[:, ~tgt])[0])
             fulls.append(full)
+
+        # two consistent points (the ranks on the solutions are the larger of the two); the
+        # second is not needed where the first attains the random point's ranks, the most
+        # any point has
+        cache: dict = {}  # the functions of the iteration, made once for both points
+        if not consistent_point(pt, arr, cache=cache).consistent:
+            rank_at(pt)  # as it is (pt.status says it is not consistent)
+            return r_all, r_rest, fulls
+        rank_at(pt)
+        if bound is not None and (r_all, r_rest) == bound:
+            return r_all, r_rest, fulls
+        other = state["other"]
+        if other is None:
+            other = state["other"] = pt.sibling(1)
+        else:
+            other.hold_from(pt)
+        if consistent_point(other, arr, cache=cache).consistent:
+            rank_at(other)
         return r_all, r_rest, fulls
 
     if top_first and soft and max_index > 0:
@@ -599,26 +638,10 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         return None
     raise ModelError(
         f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
-        f"determine all derivatives of the equations {_short([eq_names[i] for i in rows], 6)}; "
+        f"determine all derivatives of the equations {listing([eq_names[i] for i in rows], 6)}; "
         "the model may be singular (not uniquely solvable) at the test point; try another "
         "point (point=...)"
     )
-
-
-def _array_points(pt: _Point, arr: ca.SX, other: _Point | None = None
-                  ) -> tuple[list[_Point], _Point | None]:
-    """Two points on ``arr = 0`` (``pt`` itself, moved, and ``other``: a sibling, or the
-    given one moved, with ``pt``'s time and inputs), or ``[pt]`` as it is when no consistent
-    point is found (then ``pt.status`` says so). Returns the points and ``other``."""
-    cache: dict = {}  # the functions of the iteration, made once for both points
-    st = consistent_point(pt, arr, cache=cache)
-    if not st.consistent:
-        return [pt], other
-    if other is None:
-        other = pt.sibling(1)
-    else:
-        other.hold_from(pt)
-    return ([pt, other] if consistent_point(other, arr, cache=cache).consistent else [pt]), other
 
 
 # ----------------------------------------------------------------------------- analyze
@@ -704,12 +727,14 @@ class Analysis:
 
     def explain(self) -> str:
         """A plain-language account: the index and why, the DOF, the easy test."""
-        return _explain(self)
+        from .explain import explain
+
+        return explain(self)
 
     def plot_structure(self, ax=None):
         """The Sigma matrix as a figure: derivative orders, the highest-value transversal,
         and the offsets ``c`` (right) and ``d`` (top). See :func:`daekit.plot.plot_structure`."""
-        from .plot import plot_structure
+        from ..plot import plot_structure
 
         return plot_structure(self, ax=ax)
 
@@ -735,28 +760,40 @@ _vanishing_removed_dense = vanishing_removed
 
 class _JacobianAt:
     """The entries ``dF_rows[k] / d x_cols[k]^(orders[k])`` as one CasADi function (made once,
-    evaluated at several points): ``jac(pt)`` is the numeric sparse matrix; raises
+    evaluated at several points; the symbolic Jacobians of each order are the model's,
+    :meth:`daekit.Model.residual_jacobian`): ``jac(pt)`` is the numeric sparse matrix; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
 
     def __init__(self, model: Model, rows, cols, orders) -> None:
         self.model = model
-        self.rows, self.cols = np.asarray(rows), np.asarray(cols)
-        F = model.residual
+        self.rows = np.asarray(rows, dtype=np.int64)
+        self.cols = np.asarray(cols, dtype=np.int64)
+        orders = np.asarray(orders, dtype=np.int64)
         th = model.t.element_hash()
+        n_unk = model.n_unknowns
         parts, take = [], []
         nnz = 0
         for order in np.unique(orders):
             sel = np.nonzero(orders == order)[0]
-            cols_k = np.unique(self.cols[sel])
-            J = ca.jacobian(F, model.symbols(cols_k, int(order)))
+            J, cols_k = model.residual_jacobian(int(order))
             r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
-            pos = {(a, int(cols_k[b])): nnz + k for k, (a, b) in enumerate(zip(r, cc))}
-            take.append((sel, np.array([pos.get((int(self.rows[q]), int(self.cols[q])), -1)
-                                        for q in sel], dtype=np.int64)))
-            parts.append(J.nz[:] if J.nnz() else ca.SX(0, 1))
-            nnz += J.nnz()
+            keys = np.asarray(r, dtype=np.int64) * n_unk + cols_k[np.asarray(cc, dtype=np.int64)]
+            order_of = np.argsort(keys, kind="stable")
+            want = self.rows[sel] * n_unk + self.cols[sel]
+            at = np.searchsorted(keys[order_of], want)
+            at = np.minimum(at, max(keys.size - 1, 0))
+            found = keys.size > 0
+            hit = (keys[order_of][at] == want) if found else np.zeros(want.size, dtype=bool)
+            nz_idx = order_of[at][hit] if found else np.zeros(0, dtype=np.int64)
+            idx = np.full(sel.size, -1, dtype=np.int64)
+            idx[hit] = nnz + np.arange(int(hit.sum()))
+            take.append((sel, idx))
+            if nz_idx.size:
+                parts.append(J.nz[nz_idx.tolist()])
+            nnz += int(nz_idx.size)
         expr = ca.vertcat(*parts) if parts else ca.SX(0, 1)
         self.syms = [s for s in ca.symvar(expr) if s.element_hash() != th]
+        self.hashes = [s.element_hash() for s in self.syms]
         S = ca.vertcat(*self.syms) if self.syms else ca.SX(0, 1)
         self.f = FastFunction(ca.Function("sparse_jacobian", [model.t, S], [expr]))
         self.take = take
@@ -764,7 +801,7 @@ class _JacobianAt:
 
     def __call__(self, pt: _Point) -> sp.csr_matrix:
         model = self.model
-        nz = self.f(pt.t, pt.evaluate(self.syms))[0]
+        nz = self.f(pt.t, pt.evaluate(self.syms, self.hashes))[0]
         data = np.zeros(self.n)
         for sel, idx in self.take:
             data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)
@@ -892,7 +929,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     eq_names, var_names = model.equation_names, model.unknown_names
     keep = inc.vals == d[inc.cols] - c[inc.rows]
 
-    from .reduction.differentiate import expand
+    from ..reduction.differentiate import expand
 
     if consistent is None:
         consistent = int((c + 1).sum()) <= POINT_LIMIT
@@ -911,7 +948,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         jac = jac_at(pt)
         coo = jac.tocoo()
         blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
-        checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        jd = jac.toarray() if n <= EASY_DENSE_LIMIT else jac  # small: dense block slices
+        checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
         if sing0:  # too big for the derivative array: say so before any further work
             _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
@@ -922,6 +960,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
             jac_c = _vanishing_removed(jac_at(pt), jac_at(pt.perturbed()))
+            if n <= EASY_DENSE_LIMIT:
+                jac_c = jac_c.toarray()
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -936,6 +976,8 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 if not consistent_point(pt2, expansion).consistent:
                     continue
                 jac2 = _vanishing_removed(jac_at(pt2), jac_at(pt2.perturbed()))
+                if n <= EASY_DENSE_LIMIT:
+                    jac2 = jac2.toarray()
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
@@ -1053,7 +1095,7 @@ def expansion_names(ex) -> list[str]:
     """Names of the rows of ``vertcat(ex.levels)``: ``"rod"``, ``"d/dt rod"``, ..."""
     out = []
     for k, rk in enumerate(ex.rows):
-        out += [_der_eq(ex.equation_names[i], k) for i in rk]
+        out += [derivative_name(ex.equation_names[i], k) for i in rk]
     return out
 
 
@@ -1084,8 +1126,8 @@ def _definitions(model: Model) -> list[int]:
     """The equations that :func:`daekit.reduce_index` eliminates as explicit definitions of a
     derivative (``p' = v``): one source of truth, :func:`daekit.reduction.eliminate.
     find_eliminations` on the offsets' expansion (which also drops cyclic definitions)."""
-    from .reduction.differentiate import expand
-    from .reduction.eliminate import find_eliminations
+    from ..reduction.differentiate import expand
+    from ..reduction.eliminate import find_eliminations
 
     return list(find_eliminations(expand(model, validate=False)).equations)
 
@@ -1106,215 +1148,3 @@ def _input_derivatives(model: Model, c: np.ndarray) -> dict[str, int]:
 
 
 # ----------------------------------------------------------------------------- explain
-def _group(names_values: dict[str, int]) -> list[tuple[str, int]]:
-    """Group element names 'e[0]', 'e[1]' with equal values into 'e' (or 'e[0..2]')."""
-    groups: dict[str, list[tuple[str, int]]] = {}
-    for name, v in names_values.items():
-        base = name.split("[")[0] if name.endswith("]") else name
-        groups.setdefault(base, []).append((name, v))
-    out = []
-    for base, items in groups.items():
-        vals = {v for _, v in items}
-        if len(vals) == 1:
-            out.append((base, items[0][1]))
-        else:
-            out.extend(items)
-    return out
-
-
-def _times(k: int) -> str:
-    return {0: "not differentiated", 1: "differentiated once", 2: "differentiated twice"}.get(
-        k, f"differentiated {k} times"
-    )
-
-
-def _der(name: str, k: int) -> str:
-    if k == 0:
-        return name
-    return f"der({name})" if k == 1 else f"der({name},{k})"
-
-
-def _explain(a: Analysis) -> str:
-    n = len(a.equation_offsets)
-    n_alg = sum(1 for v in a.highest_order.values() if v == 0)
-    lines = [
-        f"Model {a.model_name!r}: {count(n, 'equation')} in {count(n, 'unknown')} "
-        f"({n - n_alg} appear differentiated, {n_alg} only algebraically)"
-        + (f", {count(a.n_inputs, 'input')}." if a.n_inputs else "."),
-        "",
-    ]
-    if a.structurally_ok:
-        lines.append(
-            f"Differential index {a.index}, from structural analysis (Pryce's Sigma-method); the "
-            f"system Jacobian is nonsingular at the test point (reciprocal condition "
-            f"{a.jacobian_rcond:.1e}), so the structural result is the true one."
-        )
-    else:
-        lines.extend(_explain_failure(a))
-    if a.index_confirmed:
-        for eqs, nu, found in a.index_confirmed[1]:
-            lines.append(
-                f"The structural index {nu} of the equations {_short(eqs, 6)} is only an upper "
-                f"bound: their derivative array (at consistent points) determines every "
-                f"derivative after {found} differentiation(s), so the differential index is "
-                f"{a.index}.")
-    lines.append(f"(The numeric tests were evaluated {a.test_points}.)")
-    lines.append("")
-    e = a.easy
-    if e.passed:
-        lines.append(
-            f"Easy test (the lecture's): [dF/dx' dF/dz] has full rank {e.rank} "
-            f"(condition {e.condition:.1e}): Newton can solve for the derivatives and algebraic "
-            "unknowns directly; any index-1 solver (IDAS, collocation) accepts this model as is."
-        )
-    else:
-        lines.append(
-            f"Easy test (the lecture's): [dF/dx' dF/dz] has rank {e.rank} < {e.size}: the model "
-            "is NOT index 1 as written; an index-1 solver will reject it or fail."
-            + (f" The rank deficiency involves: {', '.join(e.deficient_equations)}."
-               if e.deficient_equations else "")
-        )
-    lines.append("")
-    if a.structurally_ok:
-        diff = [(nm, c) for nm, c in _group(a.equation_offsets) if c > 0]
-        if diff:
-            lines.append("Why: to reach a system that determines every unknown's highest derivative,")
-            for nm, c in diff:
-                lines.append(f"  - {nm} must be {_times(c)}")
-            lines.append("  (all other equations are used as they are).")
-        else:
-            lines.append("Why: no equation needs differentiating.")
-        alg = [nm for nm, v in a.highest_order.items() if v == 0]
-        d = a.variable_offsets
-        for nm, dv in _group({k: d[k] for k in alg}):
-            block = next((b for b in a.blocks if any(v.split("[")[0] == nm.split("[")[0] or v == nm
-                                                     for v in b[1])), None)
-            eqs = ", ".join(dict.fromkeys(
-                _der_eq(x.split("[")[0], a.equation_offsets[x]) for x in block[0])) if block else ""
-            if dv == 0:
-                tail = "its derivative needs one more differentiation."
-            else:
-                tail = (f"its derivatives up to {_der(nm, dv)} are needed, so in the reduced "
-                        f"form {nm} becomes a state although the model never differentiates it.")
-            lines.append(f"  - algebraic {nm}: determined as {_der(nm, dv)} together with {eqs}; "
-                         + tail)
-        if a.index == 0:
-            lines.append("  It is an ODE (index 0).")
-        elif any(v == 0 for v in d.values()):
-            lines.append(
-                f"  Index = (most differentiations of an equation, {max(a.equation_offsets.values())})"
-                " + 1, because some unknowns are only determined algebraically at the top level."
-            )
-        else:
-            lines.append(
-                f"  Index = most differentiations of an equation = {max(a.equation_offsets.values())}."
-            )
-    lines.append("")
-    lines.append(
-        f"Degrees of freedom: {count(a.dof, 'initial value')} can be chosen freely; the rest follow from "
-        "the equations and their hidden consistency conditions"
-        + (" and the declared invariants." if a.declared_invariants else ".")
-    )
-    if a.declared_invariants:
-        k = len(a.declared_invariants)
-        lines.append(
-            f"Declared invariants (m.invariant): {', '.join(a.declared_invariants)}. They hold "
-            "along every solution that starts on them (reduce_index checks that their time "
-            "derivative vanishes there), so, like consistency conditions, they must hold at the "
-            f"initial time: {a.dof + k} degrees of freedom from the equations, {a.dof} with "
-            f"the declared invariant{'s' if k > 1 else ''}. Remedies against their drift: "
-            "stabilization='projection', 'baumgarte' (c' = -a c, one pole), or "
-            "'dummy_derivatives' (one state per invariant becomes algebraic)."
-        )
-    if a.structurally_ok:
-        defs = set(a.definitions)
-        cons = [(nm, c) for nm, c in _group({k: v for k, v in a.equation_offsets.items()
-                                             if k not in defs}) if c > 0]
-        if cons:
-            conds = []
-            for nm, c in cons:
-                conds.extend(_der_eq(nm, k) for k in range(c))
-            lines.append(
-                "Consistency conditions (must hold at the initial time): " + ", ".join(conds) + "."
-            )
-        if defs:
-            names = ", ".join(nm for nm, _ in _group({k: 0 for k in a.definitions}))
-            lines.append(
-                f"(The equations {names} define derivatives explicitly; the reduced form substitutes them, "
-                "so they hold by construction.)"
-            )
-    if a.input_derivatives:
-        needs = ", ".join(_der(nm, k) for nm, k in _group(a.input_derivatives))
-        lines.append(
-            f"Inputs: the equations to differentiate contain inputs, so the reduction needs their "
-            f"derivatives up to {needs}: give inputs as CasADi expressions of time when "
-            "simulating (daekit differentiates them), and in optimal control they become a chain "
-            "of integrators."
-        )
-    lines.append("")
-    if a.index <= 1 and e.passed:
-        lines.append("What to do: nothing special; simulate it directly.")
-    elif a.structurally_ok:
-        lines.append(
-            "What to do: dk.reduce_index(model) gives an equivalent index-1 DAE with these "
-            "consistency conditions; start from dk.initialize(...), and fight drift with "
-            "stabilization='dummy_derivatives', 'projection' or 'baumgarte'."
-        )
-    else:
-        lines.append(
-            "What to do: dk.reduce_index(model) repairs cancellations with constant coefficients "
-            "by itself (it replaces an equation by a combination in which the leading derivatives "
-            "cancel, then reduces; see r.amendments). Where the cancellation depends on "
-            "the variables, rewrite the model so that the structure shows the true dependencies."
-        )
-    return "\n".join(lines)
-
-
-def _explain_failure(a: Analysis) -> list[str]:
-    """The paragraph on a failed structural analysis: where it fails, what was computed
-    instead, and which of the structural numbers are right."""
-    n = len(a.equation_offsets)
-    blocks = "; ".join(", ".join(b) for b in a.singular_blocks) or "?"
-    plural = "s" if len(a.singular_blocks) > 1 else ""
-    where = (f"the system Jacobian is singular at the test point in the diagonal block{plural} "
-             f"of equations {blocks}, although the structure admits a matching")
-    num = a.numeric
-    if a.structural_part is None:
-        text = (f"Differential index {a.index}, computed NUMERICALLY from the derivative array, "
-                f"because structural analysis FAILS here: {where}.")
-    else:
-        k = len(num.equations) if num is not None else 0
-        text = (f"Differential index {a.index}. Structural analysis FAILS in part of the model: "
-                f"{where}. The {k} of {n} equations coupled to {'them' if plural else 'it'} "
-                f"(sharing unknowns) were analyzed NUMERICALLY from the derivative array: index "
-                f"{num.index}, {_dof_words(num.dof)}; the other {n - k} are structurally sound "
-                f"(index {a.structural_part[0]}, {_dof_words(a.structural_part[1])}), and the "
-                "model's index is the larger, its DOF the sum.")
-    idx_ok = a.structural_index == a.index
-    dof_ok = a.structural_dof - len(a.declared_invariants) == a.dof
-    claims = (
-        f"index {a.structural_index}"
-        + (" (right)" if idx_ok else f" (wrong: the true index is {a.index})")
-        + f" and {_dof_words(a.structural_dof)}"
-        + (" (right)" if dof_ok else f" (wrong: the true number is {a.dof})")
-    )
-    text += f" Structural analysis of the whole model claims {claims}"
-    text += ("; the equation offsets of the failing part are not to be trusted." if idx_ok and
-             dof_ok else ".")
-    text += (" (Typical causes: cancellations such as M*(x1' - x2') appearing in two "
-             "equations, a singular mass matrix, or equations whose sum loses a derivative.)")
-    lines = [text]
-    if num is not None and num.ranks:
-        lev = ", ".join(f"level {k}: rank {r} vs {rr} without targets" for k, r, rr in num.ranks)
-        lines.append(f"  Derivative array ranks ({lev}).")
-    return lines
-
-
-def _dof_words(k: int) -> str:
-    return f"{k} degree{'' if k == 1 else 's'} of freedom"
-
-
-def _der_eq(name: str, k: int) -> str:
-    if k == 0:
-        return name
-    return f"d/dt {name}" if k == 1 else f"d{k}/dt{k} {name}"

@@ -1,0 +1,126 @@
+"""The fast paths of the per-call work (issue 14): each gives what the plain form gives.
+
+- equilibrate's exponent formulations (dense and sparse) against the plain one (products of
+  the scaled matrix in every sweep): the same powers of two, exactly;
+- the union-find of small models' connected parts against SciPy's connected_components;
+- CasADi functions called through their raw buffers (FastFunction) against Function calls,
+  also from two threads at once;
+- the derivative array tested at its top level first: the same answer as level by level.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import casadi as ca
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import daekit as dk
+from daekit import numerics
+from daekit.analysis.core import _components, _derivative_array
+from daekit.model import Incidence
+from daekit.points import TestPoint, consistent_point
+from daekit.reduction.differentiate import expand
+
+
+def _random_matrix(rng, kind, m, n):
+    A = rng.standard_normal((m, n)) * (rng.random((m, n)) < rng.uniform(0.1, 1.0))
+    if kind == 1:  # wild units: rows and columns scaled by powers of two
+        A = A * 2.0 ** rng.integers(-30, 30, (m, 1)) * 2.0 ** rng.integers(-30, 30, (1, n))
+    elif kind == 2:  # entries that are powers of two (ties in the rounding of the exponents)
+        A = np.round(A * 4) / 4 * 2.0 ** rng.integers(-3, 3, (m, n))
+    elif kind == 3:  # decades apart, with rounding residue of exact zeros
+        A = A * 10.0 ** rng.uniform(-12, 12, (m, 1))
+        A[rng.random((m, n)) < 0.1] = 1e-17
+    elif kind == 4:  # non-finite entries and a zero row
+        A[rng.random((m, n)) < 0.05] = np.nan
+        A[0] = 0.0
+    return A
+
+
+def test_equilibrate_dense_is_the_plain_iteration():
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        A = _random_matrix(rng, trial % 5, int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+        dr, dc = numerics.equilibrate(A)
+        rr, rc = numerics._equilibrate_reference(A)
+        np.testing.assert_array_equal(dr, rr)
+        np.testing.assert_array_equal(dc, rc)
+
+
+def test_equilibrate_sparse_is_the_plain_iteration():
+    rng = np.random.default_rng(8)
+    for trial in range(12):
+        m, n = int(rng.integers(250, 600)), int(rng.integers(250, 600))  # > DENSE_EQUILIBRATE
+        A = sp.random(m, n, density=float(rng.uniform(0.003, 0.02)), random_state=trial,
+                      format="csr")
+        A = (sp.diags(2.0 ** rng.integers(-20, 20, m)) @ A
+             @ sp.diags(10.0 ** rng.uniform(-8, 8, n))).tocsr()
+        if trial % 3 == 0:
+            A.data[rng.random(A.nnz) < 0.05] = 1e-25
+        dr, dc = numerics.equilibrate(A)
+        rr, rc = numerics._equilibrate_reference(A)
+        np.testing.assert_array_equal(dr, rr)
+        np.testing.assert_array_equal(dc, rc)
+        B = abs(sp.diags(dr) @ A @ sp.diags(dc)).tocsr()
+        rmax = B.max(axis=1).toarray().ravel()
+        assert np.all((rmax == 0) | ((rmax >= 0.5) & (rmax <= 2.0)))
+
+
+def test_small_components_match_scipy():
+    rng = np.random.default_rng(9)
+    for _ in range(300):
+        ne, nu, nnz = int(rng.integers(1, 60)), int(rng.integers(1, 60)), int(rng.integers(0, 90))
+        rows, cols = rng.integers(0, ne, nnz), rng.integers(0, nu, nnz)
+        eq_lab, unk_lab = _components(Incidence(ne, nu, rows, cols, np.zeros(nnz, int)))
+        g = sp.csr_matrix((np.ones(nnz, np.int8), (rows, ne + cols)), shape=(ne + nu, ne + nu))
+        _, lab = sp.csgraph.connected_components(g, directed=False)
+        np.testing.assert_array_equal(eq_lab, lab[:ne])
+        np.testing.assert_array_equal(unk_lab, lab[ne:])
+
+
+def test_fast_function_matches_function_from_two_threads():
+    x = ca.SX.sym("x", 3)
+    t = ca.SX.sym("t")
+    f = ca.Function("f", [t, x], [ca.sin(x) * t, ca.sum1(x**2), ca.SX(0, 1)])
+    fast = numerics.FastFunction(f)
+    rng = np.random.default_rng(1)
+    args = [(float(rng.uniform()), rng.standard_normal(3)) for _ in range(400)]
+
+    def run(chunk):
+        return [fast(tv, xv) for tv, xv in chunk]
+
+    with ThreadPoolExecutor(2) as ex:
+        parts = list(ex.map(run, [args[::2], args[1::2]]))
+    got = {id(a): o for chunk, res in zip([args[::2], args[1::2]], parts, strict=True)
+           for a, o in zip(chunk, res, strict=True)}
+    for a in args:
+        want = f(*a)
+        out = got[id(a)]
+        np.testing.assert_array_equal(out[0], np.asarray(want[0]).ravel())
+        np.testing.assert_array_equal(out[1], np.asarray(want[1]).ravel())
+        assert out[2].size == 0
+        np.testing.assert_allclose(out[0], np.sin(a[1]) * a[0], rtol=1e-15)
+
+
+@pytest.mark.parametrize("top", [2, 4])
+def test_derivative_array_top_level_first_is_level_by_level(top):
+    """The planar pendulum (differential index 3): up to level 2 no level determines the
+    derivatives (None both ways); up to level 4 both find index 3 with 2 degrees of freedom."""
+    m = dk.examples.pendulum_planar()
+    inc = m.incidence()
+    m_all = np.zeros(inc.n_unknowns, dtype=np.int64)
+    np.maximum.at(m_all, inc.cols, inc.vals)
+    rows = cols = np.arange(inc.n_unknowns)
+    out = []
+    for top_first in (False, True):
+        pt = TestPoint(m, None, seed=3)
+        assert consistent_point(pt, ca.vertcat(*expand(m).levels)).consistent
+        out.append(_derivative_array(m, rows, cols, m_all, pt, top, "analyze", soft=True,
+                                     top_first=top_first))
+    if top == 2:
+        assert out == [None, None]
+    else:
+        assert [(o.index, o.dof) for o in out] == [(3, 2), (3, 2)]

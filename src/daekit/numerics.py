@@ -391,9 +391,11 @@ class RankInfo:
         return np.nonzero(w > rtol * w.max())[0].tolist() if w.max() > 0 else []
 
 
-def rank_info(A, rtol: float = RANK_RTOL) -> RankInfo:
+def rank_info(A, rtol: float = RANK_RTOL, scales=None) -> RankInfo:
     """Rank, reciprocal condition and null spaces of a (dense, or small sparse) matrix after
-    equilibration; see the module docstring for the tolerance.
+    equilibration; see the module docstring for the tolerance. ``scales = (dr, dc)``: these
+    factors in place of the matrix's own (those of a larger matrix it is a block of, so that
+    an entry that is rounding residue beside the rest of its row stays negligible).
 
     Example
     -------
@@ -404,7 +406,8 @@ def rank_info(A, rtol: float = RANK_RTOL) -> RankInfo:
     """
     a = A.toarray() if sp.issparse(A) else np.atleast_2d(np.asarray(A, dtype=float))
     m, n = a.shape
-    dr, dc = equilibrate(a)
+    dr, dc = equilibrate(a) if scales is None else (np.asarray(scales[0], dtype=float),
+                                                    np.asarray(scales[1], dtype=float))
     if a.size == 0:
         return RankInfo(0, 1.0, np.eye(m), np.eye(n), dr, dc, np.zeros(0))
     B = a * dr[:, None] * dc[None, :]

@@ -56,7 +56,7 @@ NUMERIC_LIMIT = 600  # largest connected part (unknowns) whose derivative array 
 ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take many seconds)
 #: Most expression nodes of one level of a derivative array (an equation times sin(x) triples
 #: them with each differentiation: level 12 of an 8-equation model took 30 s to differentiate)
-ARRAY_NODES = 300_000
+ARRAY_NODES = 60_000
 BATCH = 60  # small connected parts are stacked into derivative arrays of about this many unknowns
 
 

@@ -293,6 +293,19 @@ def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
     dof = int(d[cols].sum() - c[rows].sum())
     r.info["amendment_check"] = (f"amended system: {dof} DOF, derivative array: {truth} DOF "
                                  f"(in the {len(rows)} equations coupled to the replaced ones)")
+    if dof == truth:
+        bad = _unmet_equations(model, r, seed)
+        if bad:
+            r.info["amendment_check"] += f"; the model's {', '.join(bad)} fail at its solutions"
+            raise ReductionError(
+                f"model {model.name!r}: the linear-combination amendment of the equations "
+                f"{', '.join(repr(x) for x in replaced)} gives a reduced system whose "
+                f"consistent states violate the model's own equations {bad[:6]} (checked "
+                "at a consistent point of the reduced system): the amended system is not "
+                "equivalent, although its degrees of freedom agree. Rewrite these equations so "
+                "that the structure shows the true dependencies (solve one of them for a "
+                "variable and substitute it)."
+            )
     if dof != truth:
         raise ReductionError(
             f"model {model.name!r}: the linear-combination amendment of the equations "
@@ -304,6 +317,42 @@ def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
             "of them for a variable and substitute it), or use daekit.analyze(model) for the "
             "numeric index and DOF."
         )
+
+
+def _unmet_equations(model: Model, r: ReducedDAE, seed: int = 0) -> list[str]:
+    """The model's equations that do not hold (to ``1e-6`` of their terms) at a consistent
+    point of ``r``, every unknown and derivative they use taken from ``r.variables``; empty
+    where that cannot be checked (a name ``r`` does not give, no consistent point)."""
+    from ..points import reduced_consistent_point
+
+    syms, vals = [], []
+    inc = model.incidence()
+    top = np.zeros(inc.n_unknowns, dtype=np.int64)
+    np.maximum.at(top, inc.cols, inc.vals)
+    names = model.unknown_names
+    for j, nm in enumerate(names):
+        var, i, _ = model.resolve(nm)[0]
+        for k in range(int(top[j]) + 1):
+            base, _, idx = nm.partition("[")
+            key = nm if k == 0 else (f"der({base})" if k == 1 else f"der({base},{k})") + (
+                f"[{idx}" if idx else "")
+            if key not in r.variables:
+                return []
+            syms.append(var.der(k)[i])
+            vals.append(r.variables[key])
+    F = ca.substitute([model.residual], [ca.vertcat(*syms)], [ca.vertcat(*vals)])[0]
+    try:
+        f = ca.Function("F", [r.t, r.x, r.z, r.u, r.p], [F, ca.jacobian(F, ca.vertcat(r.x, r.z))])
+    except RuntimeError:  # other free symbols: not checkable here
+        return []
+    cp = reduced_consistent_point(r, seed + 77)
+    if cp is None:
+        return []
+    Fv, Jv = f(*cp)
+    Fv = np.abs(np.asarray(Fv.full(), dtype=float).ravel())
+    terms = np.abs(np.asarray(Jv.full(), dtype=float)) @ np.abs(np.concatenate(cp[1:3]))
+    bad = np.nonzero(~(Fv <= 1e-6 * terms + 1e-12))[0]
+    return [model.equation_names[i] for i in bad.tolist()]
 
 
 # ---------------------------------------------------------------------------- SA amendment
@@ -599,15 +648,26 @@ def _singular_rows(A: sp.csc_matrix):
     return None
 
 
-def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
+def _dense_singular_rows(M: np.ndarray, rows: np.ndarray, scales=None):
     """Rows of ``M`` (named by ``rows``) in its left null space after equilibration, or None
-    when ``M`` is nonsingular (smallest singular value above ``RANK_RTOL * n * sigma_max``)."""
+    when ``M`` is nonsingular (smallest singular value above ``RANK_RTOL * n * sigma_max``).
+    ``scales``: see :func:`daekit.numerics.rank_info`."""
     if not np.all(np.isfinite(M)) or M.size == 0:
         return None
-    info = numerics.rank_info(M)
+    info = numerics.rank_info(M, scales=scales)
     if info.rank == M.shape[0]:
         return None
     return sorted(rows[info.deficient_rows(1e-6)].tolist())
+
+
+def _z_block_singular_rows(A: np.ndarray, nx: int):
+    """:func:`_dense_singular_rows` of the z block ``A[:, nx:]`` of ``A = d alg / d(x, z)``,
+    in the row and column factors of the whole ``A``."""
+    Az = A[:, nx:]
+    if not np.all(np.isfinite(A)) or Az.size == 0:
+        return None
+    dr, dc = numerics.equilibrate(A)
+    return _dense_singular_rows(Az, np.arange(Az.shape[0]), scales=(dr, dc[nx:]))
 
 
 #: Reduced systems with at most this many unknowns are checked at consistent points too.
@@ -652,7 +712,7 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
             A = np.asarray(f(*cp).full(), dtype=float)
             if not np.all(np.isfinite(A)):
                 continue
-            bad = _dense_singular_rows(numerics.vanishing_removed(A, ref), np.arange(r.nz))
+            bad = _z_block_singular_rows(numerics.vanishing_removed(A, ref), r.nx)
         else:
             A = _to_scipy(f(*cp))
             if not np.all(np.isfinite(A.data)):
@@ -677,9 +737,12 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     if r.nz == 0:  # an ODE (alg has as many rows as z)
         r.info["index1_check"] = "passed"
         return
-    J = ca.jacobian(r.alg, r.z)
-    f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
     small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
+    # small: d alg / d(x, z), and the z block ranked in the equilibration of the whole (an
+    # entry of d alg / d z that is rounding residue of a cancelled term, 1e-16 beside the
+    # row's x entries, must not be scaled up to unit size: the row does not involve z)
+    J = ca.jacobian(r.alg, ca.vertcat(r.x, r.z) if small else r.z)
+    f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
         if small:
@@ -687,7 +750,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
             if not np.all(np.isfinite(A)):
                 continue
             finite = True
-            bad = _dense_singular_rows(A, np.arange(r.nz))
+            bad = _z_block_singular_rows(A, r.nx)
         else:
             A = _to_scipy(f(t, x, z, u, p))
             if not np.all(np.isfinite(A.data)):

@@ -704,6 +704,8 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
     for k in range(2):
         cp = reduced_consistent_point(r, seed + 1000 * k)
         if cp is None:
+            if bad is not None:  # singular at the one consistent point found: singular
+                return bad
             r.info["index1_check"] = "passed"
             r.info["index1_check_at"] = "a random point (no consistent point found)"
             return None

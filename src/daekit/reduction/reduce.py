@@ -588,7 +588,7 @@ def _dense_singular_rows(M: np.ndarray, rows: np.ndarray):
 CONSISTENT_CHECK_LIMIT = 1000
 
 
-def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
+def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, jac_alg=None):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
     ``r.info["index1_check"]``."""
@@ -600,7 +600,7 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int):
         return None
     bad = None
     for k in range(2):
-        cp = reduced_consistent_point(r, seed + 1000 * k)
+        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg)
         if cp is None:
             r.info["index1_check"] = "passed"
             r.info["index1_check_at"] = "a random point (no consistent point found)"
@@ -634,7 +634,11 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     if r.nz == 0:  # an ODE (alg has as many rows as z)
         r.info["index1_check"] = "passed"
         return
-    J = ca.jacobian(r.alg, r.z)
+    w = ca.vertcat(r.x, r.z)
+    # d alg / d(x, z) once: its z columns here, all of it for the consistent point
+    Jw = ca.jacobian(ca.vec(ca.SX(r.alg)), w) if (
+        w.is_valid_input() and r.nx + r.nz <= CONSISTENT_CHECK_LIMIT) else None
+    J = Jw[:, r.nx:] if Jw is not None else ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
     small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
     bad, finite = None, False
@@ -657,7 +661,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
         # still be singular (a constraint times a factor that vanishes there): check at
         # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
-        bad = _singular_on_solutions(r, f, seed)
+        bad = _singular_on_solutions(r, f, seed, Jw)
         if bad is None:
             return
     if not finite:

@@ -20,7 +20,9 @@ Rows, all from one run:
 
 Printed: wall time, per-sample time, speedup against the hand loop, and whether the results
 are bit-for-bit those of the hand loop. The per-sample time of a single ``simulate`` call
-(initialization excluded) is printed too. Targets: speedup >= 1.7 with 2 workers, overhead of
+(initialization excluded) is printed too, and the same samples' ``simulate`` calls alone (their
+initial values made beforehand: the like-for-like base of the per-sample overhead, as the
+samples differ in their step counts). Targets: speedup >= 1.7 with 2 workers, overhead of
 the ensemble per sample <= 20 %.
 
 Run: ``python benchmarks/ensemble.py [N_SAMPLES]`` (default 200). Wall times on a shared
@@ -75,6 +77,17 @@ def main() -> None:
         reps.append(time.perf_counter() - w0)
         creps.append(time.process_time() - c0)
     t_sim, c_sim = float(np.median(reps)), float(np.median(creps))
+    # the same samples' simulate calls alone (initial values made beforehand): the
+    # like-for-like base of the per-sample overhead (the samples differ in their steps)
+    inits = [dk.initialize(r, fixed={"p": s["p"], "der(p)": s["der(p)"]}, params={"L": s["L"]})
+             for s in samples]
+    sim_only = []
+    for _ in range(REPEAT):
+        w0, c0 = time.perf_counter(), time.process_time()
+        for s, i0 in zip(samples, inits, strict=True):
+            dk.simulate(r, t, i0, params={"L": s["L"]}, rtol=TOL, atol=TOL)
+        sim_only.append((time.perf_counter() - w0, time.process_time() - c0))
+    t_sims, c_sims = min(x[0] for x in sim_only), min(x[1] for x in sim_only)
 
     rows = []
     opts = {"rtol": TOL, "atol": TOL, "progress": False}
@@ -122,6 +135,8 @@ def main() -> None:
     print(f"{n} samples of the 3D pendulum, {T_END:g} s each ({N_OUT} points, rtol = atol = "
           f"{TOL:g}); one simulate call (no initialize): {1e3 * t_sim:.2f} ms wall, "
           f"{1e3 * c_sim:.2f} ms CPU")
+    print(f"the {n} samples' simulate calls alone (initial values made beforehand): "
+          f"{t_sims:.2f} s wall, {c_sims:.2f} s CPU, {1e3 * c_sims / n:.2f} ms CPU per sample")
     print(f"{'':<46} {'wall [s]':>9} {'wall/sample':>12} {'speedup':>8} "
           f"{'CPU/sample':>11} {'here CPU':>9} {'identical':>9}")
     for name, wall, cpu_s, ident, here in rows:
@@ -132,7 +147,9 @@ def main() -> None:
           f"included). here CPU: CPU seconds of this (the submitting) process. Per-sample "
           f"overhead of the ensemble against the hand loop: "
           f"{100 * (rows[1][1] / t_hand - 1):+.1f} % wall, {100 * (rows[1][2] / c_hand - 1):+.1f} "
-          f"% CPU (serial).")
+          f"% CPU (serial). Per-sample cost of initialize + simulate (serial ensemble) against "
+          f"the simulate calls alone: {100 * (rows[1][1] / t_sims - 1):+.1f} % wall, "
+          f"{100 * (rows[1][2] / c_sims - 1):+.1f} % CPU.")
     print(f"load-independent estimate of the speedup on {WORKERS} idle cores (processes): "
           f"hand CPU / max(worker CPU / {WORKERS}, submitting CPU) = "
           f"{c_hand / max(rows[2][2] / WORKERS, rows[2][4]):.2f}")

@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import multiprocessing
 import os
 import pickle
 import threading
@@ -640,12 +641,21 @@ def ensemble(
         key = hashlib.sha1(blob).hexdigest()
         stats["system_bytes"] = len(blob)
         own = None
+        inherited = None
         ex = executor
         if ex is None:
             from concurrent.futures import ProcessPoolExecutor
 
             n_workers = max(1, min(_cpu_count(), len(samp)))
-            own = ex = ProcessPoolExecutor(n_workers, initializer=_install, initargs=(key, blob))
+            ctx = multiprocessing.get_context()
+            if ctx.get_start_method() == "fork" and key not in _SYSTEMS:
+                # forked workers inherit the system as it is here, with whatever it has built
+                # already (initialize's and simulate's functions): no unpickling, no warm-up;
+                # the blob stays the fallback (a worker started otherwise unpickles it)
+                _SYSTEMS[key] = (r, inputs)
+                inherited = key
+            own = ex = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_install,
+                                           initargs=(key, blob))
             stats.update(executor="processes", workers=n_workers)
         elif _is_dask_client(ex):
             stats.update(executor=f"dask ({getattr(ex.scheduler, 'address', '?')})",
@@ -684,6 +694,8 @@ def ensemble(
                 n_done += len(pairs)
                 bar.update(n_done, failed)
         finally:
+            if inherited is not None:
+                _SYSTEMS.pop(inherited, None)  # the workers have their copies
             if own is not None:
                 own.shutdown(wait=True)
         if local_reduce is not None:

@@ -558,7 +558,8 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     return sol[:n]
 
 
-def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 4):
+def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 4,
+                             jac_alg: ca.SX | None = None):
     """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
     holds (time and inputs random, parameters at their values), or None when Gauss--Newton
     finds none from ``starts`` random starts.
@@ -583,9 +584,11 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
                                  [t_s, w, u_s, p_s])
     G = ca.vertcat(alg, inv)
     # the parameters at their values are an input (no substitution into the expressions);
-    # one Jacobian per block (cheaper than of the stack)
-    J = ca.vertcat(ca.jacobian(alg, w), ca.jacobian(inv, w)) if inv.numel() else \
-        ca.jacobian(alg, w)
+    # one Jacobian per block (cheaper than of the stack); ``jac_alg``: the caller's d alg / dw
+    # (of the system's own symbols)
+    Ja = jac_alg if jac_alg is not None and w is not None and ca.is_equal(
+        w, ca.vertcat(r.x, r.z)) else ca.jacobian(alg, w)
+    J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
     f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
     fj = SparseFunction([t_s, u_s, w, p_s], J)
     jac = fj.dense if _is_dense(n, G.numel()) else fj

@@ -688,7 +688,8 @@ def _perturbed(cp, seed: int, at_random, f: ca.Function):
     return ref if np.all(np.isfinite(ref.data if sp.issparse(ref) else ref)) else at_random
 
 
-def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
+def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
+                           jac_alg=None):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
     ``r.info["index1_check"]``. Entries that vanish on the solutions (below
@@ -702,7 +703,7 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random):
         return None
     bad = None
     for k in range(2):
-        cp = reduced_consistent_point(r, seed + 1000 * k)
+        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg)
         if cp is None:
             if bad is not None:  # singular at the one consistent point found: singular
                 return bad
@@ -739,11 +740,18 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     if r.nz == 0:  # an ODE (alg has as many rows as z)
         r.info["index1_check"] = "passed"
         return
+    w = ca.vertcat(r.x, r.z)
+    # d alg / d(x, z) once: its z columns here, all of it for the consistent point
+    Jw = ca.jacobian(ca.vec(ca.SX(r.alg)), w) if (
+        w.is_valid_input() and r.nx + r.nz <= CONSISTENT_CHECK_LIMIT) else None
     small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
     # small: d alg / d(x, z), and the z block ranked in the equilibration of the whole (an
     # entry of d alg / d z that is rounding residue of a cancelled term, 1e-16 beside the
     # row's x entries, must not be scaled up to unit size: the row does not involve z)
-    J = ca.jacobian(r.alg, ca.vertcat(r.x, r.z) if small else r.z)
+    if small:
+        J = Jw if Jw is not None else ca.jacobian(r.alg, w)
+    else:
+        J = Jw[:, r.nx:] if Jw is not None else ca.jacobian(r.alg, r.z)
     f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
@@ -765,7 +773,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
         # still be singular (a constraint times a factor that vanishes there): check at
         # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
-        bad = _singular_on_solutions(r, f, seed, A)
+        bad = _singular_on_solutions(r, f, seed, A, Jw)
         if bad is None:
             return
     if not finite:

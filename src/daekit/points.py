@@ -558,7 +558,7 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     return sol[:n]
 
 
-def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 4,
+def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
                              jac_alg: ca.SX | None = None):
     """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
     holds (time and inputs random, parameters at their values), or None when Gauss--Newton
@@ -596,10 +596,10 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
-        # the later starts: normal draws, then small values (units where the solutions are
-        # of order 1e-3 of the model's: a start at 1 diverged to 1e10)
+        # the later starts: normal draws, then small values, 1e-3 and 1e-6 (units where the
+        # solutions are of order 1e-3 .. 1e-6 of the model's: a start at 1 diverged to 1e10)
         w0 = (rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n) if k < 3
-              else rng.uniform(-1e-3, 1e-3, n))
+              else rng.uniform(-1e-3, 1e-3, n) * 1e-3 ** (k - 3))
         wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x, pv)[0],
                               w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv))
         if st.consistent:

@@ -35,17 +35,17 @@ import pytest
 import daekit as dk
 
 FAST_CASES = 8
-#: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``; the counts are in the
-#: issue note): the reduction is never silently wrong (a named ReductionError where daekit
-#: cannot reduce a case), and analyze is right or raises a named error, except on
-#: MAX_ANALYSIS_WRONG of them (units of variables with an equation times 1.5 + sin(unknown):
-#: the derivative array at consistent points has a lower rank than the untransformed
-#: model's, not understood yet).
+#: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``, every case simulated,
+#: at commit "reduced_consistent_point: a fifth start"): analyze right on 487, wrong on 13
+#: (all with units of variables or an equation times 1.5 + sin(unknown) / plus an unknown times
+#: another: the derivative array at consistent points has a lower rank than the untransformed
+#: model's, not understood yet), no analyze error; the reduction right (DOF, initial values,
+#: simulated solution to 1e-6) on 434, a named ReductionError on 66, silently wrong on 0.
 MAX_WRONG = 0
-MIN_ANALYSIS_OK = 0.95
+MIN_ANALYSIS_OK = 0.97
 MAX_ANALYSIS_WRONG = 0.03
 #: Least share of cases reduced, initialized and simulated right (the rest: named errors).
-MIN_OK = 0.75
+MIN_OK = 0.85
 SLOW_CASES = 500
 #: IDAS tolerances of the simulated check. At rtol >= 1e-10 the reduced systems of index-4/5
 #: chains show a pathology of the integrator (nearly every step fails the error test once:

@@ -57,6 +57,9 @@ ARRAY_LIMIT = 3000  # most rows of one derivative array (dense SVDs beyond take 
 #: Most expression nodes of one level of a derivative array (an equation times sin(x) triples
 #: them with each differentiation: level 12 of an 8-equation model took 30 s to differentiate)
 ARRAY_NODES = 60_000
+#: ... unless that is below this many times the nodes of level 0 (big models such as the
+#: slider crank, 24 equations with quadrature sums, grow normally past ARRAY_NODES)
+ARRAY_GROWTH = 300
 BATCH = 60  # small connected parts are stacked into derivative arrays of about this many unknowns
 
 
@@ -525,24 +528,27 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 v.append(var.der(r))
                 w.append(var.der(r + 1))
         levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
+        if not grown["first"]:
+            grown["first"] = ca.Function("level", ca.symvar(levels[0]), [levels[0]]).n_nodes()
         grown["nodes"] = ca.Function("level", ca.symvar(levels[-1]), [levels[-1]]).n_nodes()
         col_j.extend(cols)
         col_r.extend(int(mj) + k for mj in m)
         target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
         ncols.append(len(col_j))
 
-    grown = {"nodes": 0}  # expression nodes of the last level made
+    grown = {"nodes": 0, "first": 0}  # expression nodes of the last level made, of level 0
 
     def too_long(k: int) -> bool:
-        if (k + 1) * len(rows) <= ARRAY_LIMIT and grown["nodes"] <= ARRAY_NODES:
+        swollen = grown["nodes"] > max(ARRAY_NODES, ARRAY_GROWTH * grown["first"])
+        if (k + 1) * len(rows) <= ARRAY_LIMIT and not swollen:
             return False
         if soft:
             return True
-        if grown["nodes"] > ARRAY_NODES:
+        if swollen:
             raise ModelError(
                 f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
                 f"equations {listing([eq_names[i] for i in rows], 6)} is still not enough at "
-                f"level {k - 1} and its expressions grow beyond {ARRAY_NODES} nodes (each "
+                f"level {k - 1} and its expressions have grown to {grown['nodes']} nodes (each "
                 "differentiation multiplies them); the equations may not determine their "
                 "unknowns at the test points, or factors such as sin(x) times an equation "
                 "make every derivative longer: give a point where these equations are "

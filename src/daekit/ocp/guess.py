@@ -484,7 +484,7 @@ def _consistent_end(prob, x, z, w, p, T):
     """The point nearest ``(x, z)`` (Gauss-Newton, least-norm steps) where the algebraic
     equations, the invariants and the final conditions hold at ``t = T``; ``ok`` is False when
     they cannot be met (the caller then holds the state constant)."""
-    from .consistency import project_ends
+    from .consistency import as_array, project_ends
 
     a = prob.aug
     n = a.nx + a.nz + a.nw
@@ -499,9 +499,9 @@ def _consistent_end(prob, x, z, w, p, T):
 
     def fun(_v0, vT, _p, _T):  # only the final point moves; w is held at its value
         r, J = F(vT)
-        J = np.asarray(J, float)
+        J = as_array(J)
         J[:, n - nw:] = 0.0
-        return np.asarray(r, float), np.hstack([np.zeros_like(J), J])
+        return as_array(r), np.hstack([np.zeros_like(J), J])
 
     v0 = np.concatenate([x, z, w])
     _, vT, res = project_ends(fun, v0, v0, p, T, tol=1e-9)

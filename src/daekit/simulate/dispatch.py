@@ -342,12 +342,12 @@ def simulate(
         from ..reduction import baumgarte
 
         # made once per system and poles, kept on it (so is its integrator)
-        cache = r.__dict__.setdefault("_daekit_baumgarte", {})
+        cache = r.derived("simulate.baumgarte", lambda r: {})
         key = repr(poles)
         if key not in cache:
             cache[key] = baumgarte(r, poles=poles)
         r_int = cache[key]
-    if r_int.info.get("index", 1) >= 2 and "suppress_algebraic" not in options:
+    if r_int.index >= 2 and "suppress_algebraic" not in options:
         # an index-2 form (GGL): its algebraic unknowns are not controlled by the BDF error
         # test (the index-2 variables' errors do not converge at the order of the method),
         # else IDAS takes tiny steps (Brenan, Campbell, Petzold 1996, sec. 5.4)
@@ -371,9 +371,7 @@ def simulate(
 
         traj = simulate_dummy(r_int, tg, x0, z0, inputs, pv, rtol, atol, options, progress)
     elif stabilization == "projection":
-        proj = r_int.__dict__.get("_daekit_projector")  # built once per system, kept on it
-        if proj is None:
-            proj = r_int.__dict__["_daekit_projector"] = Projector(r_int)
+        proj = r_int.derived("simulate.projector", Projector)  # built once per system
         proj.stats = {"projections": 0, "projection_iterations": 0}
         proj.set_tolerances(rtol, atol)
         tol = default_drift_tol(rtol, atol) if drift_tol is None else float(drift_tol)

@@ -294,7 +294,7 @@ class Driver:
         user_budget = "max_num_steps" in system.options
         budget = {} if user_budget else {"max_num_steps": System.first_budget}
         tries: list[tuple[dict, bool]] = []
-        if first and system.r.info.get("index", 1) < 2:
+        if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
         tries.append((budget, True))
         if "suppress_algebraic" not in system.options:

@@ -112,9 +112,11 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
     fr = np.concatenate([[0.0], ((np.arange(N).reshape(-1, 1) + tau[1:]) / N).ravel()])
     gx, gz, gw = guess(fr * Tg)
 
+    offs = {}
+
     def block(name, n, cols, lb, ub, g):
-        v, _ = B.var(name, n * cols, np.tile(lb, cols), np.tile(ub, cols),
-                     np.asarray(g, float).reshape(n, cols).ravel("F"))
+        v, offs[name] = B.var(name, n * cols, np.tile(lb, cols), np.tile(ub, cols),
+                              np.asarray(g, float).reshape(n, cols).ravel("F"))
         return ca.reshape(v, n, cols)
 
     X = block("x", nx, M + 1, xlb, xub, gx)
@@ -131,7 +133,18 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
         ncoef = d
     tc = h * ca.DM((np.arange(N).reshape(-1, 1) + tau[1:]).ravel()).T  # collocation times
     Pm = ca.repmat(P, 1, M)
-    ode, alg, L = f.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+    structured = (STRUCTURED and S is ca.MX and prob.T_free is None and not prob.free_params
+                  and not prob.solver_options.get("expand"))
+    if structured:
+        # the model's outputs at the collocation points as symbols Q, replaced by the mapped
+        # model afterwards: the NLP is linear in Q, which gives its derivatives in closed form
+        # (see _structured_derivatives)
+        fq = _point_function(prob)
+        nq = fq.size1_out(0)
+        Q = ca.MX.sym("Q", nq, M)
+        ode, alg, L = Q[:nx, :], Q[nx:nx + nz, :], Q[nx + nz:nx + nz + 1, :]
+    else:
+        ode, alg, L = f.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
     # t = 0: algebraic equations, invariants, path constraints
     alg0 = f(0.0, X[:, 0], Z[:, 0], W0, P)[1]
     B.con(alg0, 0.0, 0.0, "algebraic equations", 0.0, "alg", an)
@@ -148,7 +161,8 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
     B.con(ca.vec(alg), 0.0, 0.0, "algebraic equations", None, "alg", an * M,
           times=np.repeat(fr[1:], nz))
     if prob.path_fun is not None:
-        pth = prob.path_fun.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+        pth = Q[nx + nz + 1:, :] if structured else \
+            prob.path_fun.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
         npth = prob.path_lb.size
         B.con(ca.vec(pth), np.tile(prob.path_lb, M), np.tile(prob.path_ub, M),
               "path constraints", None, "path", list(prob.path_labels) * M,
@@ -157,5 +171,126 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
     if prob.has_lagrange:
         J = h * sum(float(b[j - 1]) * ca.sum2(L[:, j - 1::d]) for j in range(1, d + 1))
     Wgrid = ca.horzcat(W0, Wc)
-    return finish(prob, B, S(J), P, T, fr, X, Z, Wgrid, Wv, kept, selectors, pins,
-                  f"Radau IIA collocation, degree {d}", [k * d for k in range(N + 1)], ncoef)
+    tr = finish(prob, B, S(J), P, T, fr, X, Z, Wgrid, Wv, kept, selectors, pins,
+                f"Radau IIA collocation, degree {d}", [k * d for k in range(N + 1)], ncoef)
+    if structured:
+        V = B.V()
+        Qval = fq.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+        pts = _point_columns(offs, nx, nz, nw, N, d, prob.control_mode == "constant")
+        G = B.G()
+        G_real, J_real = ca.Function("nlp_q", [V, Q], [G, tr.J])(V, Qval)
+        tr.derivatives = _structured_derivatives(prob, fq, V, Q, G, tr.J, G_real, tc, X, Z,
+                                                 Wc, Pm, pts)
+        B.g = [G_real]
+        tr.J = J_real
+    return tr
+
+
+#: Give IPOPT the constraint Jacobian and the Lagrangian Hessian of the collocation NLP in
+#: closed form (fixed final time and parameters): the NLP is linear in the model's outputs
+#: at the collocation points, so its derivatives are the per-point derivatives of the model
+#: (small SX functions, mapped over the points) scattered into place, plus CasADi's AD of
+#: the few rows at the ends. Measured against CasADi's AD of the MX NLP (nlpsol build /
+#: IPOPT run, CPU): see the benchmark's NLP stage.
+STRUCTURED = True
+
+
+def _point_function(prob) -> ca.Function:
+    """``(t, x, z, w, p) -> q = (ode, alg, lagrange, path)`` at one point."""
+    a = prob.aug
+    outs = list(prob.model_fun()(a.t, a.x, a.z, a.w, a.p))
+    if prob.path_fun is not None:
+        outs.append(prob.path_fun(a.t, a.x, a.z, a.w, a.p))
+    # as columns: an empty output may be 1-by-0, which vertcat would count as a row
+    outs = [ca.reshape(o, o.numel(), 1) for o in outs]
+    return ca.Function("q", [a.t, a.x, a.z, a.w, a.p], [ca.vertcat(*outs)])
+
+
+def _point_columns(offs, nx, nz, nw, N, d, constant) -> np.ndarray:
+    """``(M, nx + nz + nw)``: the decision-vector index of each local unknown ``y = (x, z, w)``
+    at each collocation point ``k`` (x and z at grid column ``k + 1``, w of its interval
+    (constant controls) or of the point)."""
+    M = N * d
+    k = np.arange(M).reshape(-1, 1)
+    cols = [offs["x"] + (k + 1) * nx + np.arange(nx), offs["z"] + (k + 1) * nz + np.arange(nz)]
+    wc = k // d if constant else k
+    cols.append(offs["w"] + wc * nw + np.arange(nw))
+    return np.hstack([c.reshape(M, -1) for c in cols]).astype(int)
+
+
+def _structured_derivatives(prob, fq, V, Q, G, J, G_real, tc, X, Z, Wc, Pm, pts) -> dict:
+    """IPOPT's ``jac_g`` and ``hess_lag`` for the NLP ``G(V, Q), J(V, Q)`` (linear in ``Q``)
+    with ``Q = fq`` mapped over the collocation points.
+
+    ``dG/dV = dG/dV|_Q + dG/dQ dQ/dV``, where ``dG/dQ`` is constant and ``dQ/dV`` holds the
+    per-point Jacobians of ``fq``; the Lagrangian Hessian is that of the ``V``-only rows
+    (CasADi's AD with ``Q`` held) plus the per-point Hessians of ``lq . fq`` with the
+    multipliers ``lq = d(lam_f J + lam_g . G)/dQ`` (constant in ``V``), scattered into place.
+    """
+    a = prob.aug
+    M, ny = pts.shape
+    nq = fq.size1_out(0)
+    nV, nG = int(V.numel()), int(G.numel())
+    y = ca.vertcat(a.x, a.z, a.w)
+    q = fq(a.t, a.x, a.z, a.w, a.p)
+    p_in = ca.MX.sym("p", 0)
+    Qz = ca.MX.zeros(nq, M)
+    # Jacobian
+    jf = ca.Function("jq", [a.t, a.x, a.z, a.w, a.p], [ca.jacobian(q, y)])
+    spj = jf.sparsity_out(0)
+    jr, jc = (np.asarray(v, int) for v in spj.get_triplet())
+    # entry e of point k: Q row k nq + jr, V column pts[k, jc]
+    qrow = (np.arange(M).reshape(-1, 1) * nq + jr).ravel()
+    vcol = pts[:, jc].ravel()
+    spD, perm = _pattern(nq * M, nV, qrow, vcol)
+    Dnz = jf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+    D = ca.MX(spD, ca.vec(Dnz.nz[:])[perm.tolist()]) if perm.size else ca.MX(nq * M, nV)
+    JV = ca.Function("JV", [V, Q], [ca.jacobian(G, V)])(V, Qz)
+    JQ = ca.Function("JQ", [V, Q], [ca.jacobian(G, ca.vec(Q))])(ca.DM.zeros(nV), ca.DM.zeros(
+        nq, M))
+    jac = JV + ca.mtimes(ca.DM(ca.sparsify(JQ)), D)
+    jac_g = ca.Function("nlp_jac_g", [V, p_in], [G_real, jac])
+    # Hessian
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nG)
+    lag = lam_f * J + ca.dot(lam_g, G)
+    HV = ca.Function("HV", [V, Q, lam_f, lam_g], [ca.triu(ca.hessian(lag, V)[0])])(
+        V, Qz, lam_f, lam_g)
+    lq = ca.Function("LQ", [V, Q, lam_f, lam_g], [ca.gradient(lag, Q)])(
+        ca.DM.zeros(nV), ca.DM.zeros(nq, M), lam_f, lam_g)
+    lq_s = ca.SX.sym("lq", nq)
+    hf = ca.Function("hq", [a.t, a.x, a.z, a.w, a.p, lq_s],
+                     [ca.triu(ca.hessian(ca.dot(lq_s, q), y)[0])])
+    sph = hf.sparsity_out(0)
+    hr, hc = (np.asarray(v, int) for v in sph.get_triplet())
+    gr, gc = pts[:, hr].ravel(), pts[:, hc].ravel()
+    spH, Smat = _summed_pattern(nV, np.minimum(gr, gc), np.maximum(gr, gc))
+    if hr.size:
+        Hnz = hf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm, ca.reshape(lq, nq, M))
+        Hp = ca.MX(spH, ca.mtimes(Smat, ca.vec(Hnz.nz[:])))
+        H = HV + Hp
+    else:
+        H = HV
+    hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
+    return {"jac_g": jac_g, "hess_lag": hess_lag}
+
+
+def _pattern(nrow, ncol, rows, cols):
+    """The sparsity of distinct entries ``(rows, cols)`` and the permutation that puts
+    values given in entry order into its (column-major) nonzero order."""
+    key = np.asarray(cols, np.int64) * nrow + np.asarray(rows, np.int64)
+    order = np.argsort(key, kind="stable")
+    sp = ca.Sparsity.triplet(nrow, ncol, np.asarray(rows)[order].tolist(),
+                             np.asarray(cols)[order].tolist())
+    return sp, order
+
+
+def _summed_pattern(n, rows, cols):
+    """The sparsity of the entries ``(rows, cols)`` (duplicates summed) and the 0/1 matrix
+    that sums values given in entry order into its nonzeros."""
+    key = np.asarray(cols, np.int64) * n + np.asarray(rows, np.int64)
+    uniq, inv = np.unique(key, return_inverse=True)
+    sp = ca.Sparsity.triplet(n, n, (uniq % n).tolist(), (uniq // n).tolist())
+    # one 1 per column (entry e sums into nonzero inv[e]), given in compressed columns
+    A = ca.Sparsity(int(uniq.size), int(key.size), list(range(key.size + 1)),
+                    inv.astype(int).tolist())
+    return sp, ca.DM(A, 1.0)

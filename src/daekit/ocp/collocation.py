@@ -153,20 +153,30 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
         B.con(inv0, 0.0, 0.0, "invariants", 0.0, "invariant", list(a.inv_names))
     prob.add_path(B, 0.0, X[:, 0], Z[:, 0], W0, P, 0.0)
     # collocation: for each Radau point j, all intervals at once
+    mapped = {}  # index in B.g -> ("dynamics", j) / ("alg",) / ("path",): rows linear in Q
     for j in range(1, d + 1):
         xp = sum(float(C[r, j]) * X[:, r:r + M - d + 1:d] for r in range(d + 1))
+        n_g = len(B.g)
         B.con(ca.vec(xp - h * ode[:, j - 1::d]), 0.0, 0.0, "dynamics", None, "dynamics",
               [f"dynamics on interval {k}" for k in range(N) for _ in range(nx)],
               times=np.repeat(fr[j::d], nx))
+        if len(B.g) > n_g:
+            mapped[n_g] = ("dynamics", j)
+    n_g = len(B.g)
     B.con(ca.vec(alg), 0.0, 0.0, "algebraic equations", None, "alg", an * M,
           times=np.repeat(fr[1:], nz))
+    if len(B.g) > n_g:
+        mapped[n_g] = ("alg",)
     if prob.path_fun is not None:
         pth = Q[nx + nz + 1:, :] if structured else \
             prob.path_fun.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
         npth = prob.path_lb.size
+        n_g = len(B.g)
         B.con(ca.vec(pth), np.tile(prob.path_lb, M), np.tile(prob.path_ub, M),
               "path constraints", None, "path", list(prob.path_labels) * M,
               times=np.repeat(fr[1:], npth))
+        if len(B.g) > n_g:
+            mapped[n_g] = ("path",)
     J = 0
     if prob.has_lagrange:
         J = h * sum(float(b[j - 1]) * ca.sum2(L[:, j - 1::d]) for j in range(1, d + 1))
@@ -179,8 +189,10 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
         pts = _point_columns(offs, nx, nz, nw, N, d, prob.control_mode == "constant")
         G = B.G()
         G_real, J_real = ca.Function("nlp_q", [V, Q], [G, tr.J])(V, Qval)
-        tr.derivatives = _structured_derivatives(prob, fq, V, Q, G, tr.J, G_real, tc, X, Z,
-                                                 Wc, Pm, pts)
+        lin = _linear_parts(B.g, mapped, offs["x"], int(V.numel()), nx, nz, nq, N, d, C,
+                            float(h), b)
+        tr.derivatives = _structured_derivatives(prob, fq, V, Q, tr.J, G_real, tc, X, Z,
+                                                 Wc, Pm, pts, lin)
         B.g = [G_real]
         tr.J = J_real
     return tr
@@ -218,58 +230,110 @@ def _point_columns(offs, nx, nz, nw, N, d, constant) -> np.ndarray:
     return np.hstack([c.reshape(M, -1) for c in cols]).astype(int)
 
 
-def _structured_derivatives(prob, fq, V, Q, G, J, G_real, tc, X, Z, Wc, Pm, pts) -> dict:
+def _linear_parts(g_list, mapped, x_off, nV, nx, nz, nq, N, d, C, h, b) -> dict:
+    """The rows of the collocation NLP that are linear in ``(V, Q)``, as constant matrices:
+    ``dG/dV`` of the collocation sums, ``dG/dQ`` and ``dJ/dQ`` (the Radau weights of the
+    integrand), and the other ("end") rows by their positions."""
+    sizes = [int(g.numel()) for g in g_list]
+    start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    nG, M = int(start[-1]), N * d
+    vr, vc, vv, qr, qc, qv = [], [], [], [], [], []
+    end_rows = []
+    i_, comp = np.meshgrid(np.arange(N), np.arange(nx), indexing="ij")
+    for gi, n in enumerate(sizes):
+        kind = mapped.get(gi)
+        r0 = start[gi]
+        if kind is None:
+            end_rows.extend(range(r0, r0 + n))
+        elif kind[0] == "dynamics":  # row i nx + c: sum_r C[r, j] X[c, i d + r] - h ode[c, k]
+            j = kind[1]
+            rows = (r0 + i_ * nx + comp).ravel()
+            for r in range(d + 1):
+                vr.append(rows)
+                vc.append((x_off + (i_ * d + r) * nx + comp).ravel())
+                vv.append(np.full(rows.size, float(C[r, j])))
+            qr.append(rows)
+            qc.append(((i_ * d + j - 1) * nq + comp).ravel())
+            qv.append(np.full(rows.size, -h))
+        else:  # alg (Q rows nx..) or path (Q rows nx + nz + 1..) at every point
+            first = nx if kind[0] == "alg" else nx + nz + 1
+            per = n // M
+            k_, c_ = np.meshgrid(np.arange(M), np.arange(per), indexing="ij")
+            qr.append((r0 + k_ * per + c_).ravel())
+            qc.append((k_ * nq + first + c_).ravel())
+            qv.append(np.ones(n))
+    cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, int)  # noqa: E731
+    JVlin = _dm_triplet(nG, nV, cat(vr), cat(vc), cat(vv))
+    JQ = _dm_triplet(nG, nq * M, cat(qr), cat(qc), cat(qv))
+    k = np.arange(M)
+    gJ = _dm_triplet(nq * M, 1, k * nq + nx + nz, np.zeros(M, int), h * np.asarray(b)[k % d])
+    return {"JV": JVlin, "JQ": JQ, "gJ": gJ, "end_rows": end_rows, "nG": nG,
+            "ends": [g for gi, g in enumerate(g_list) if gi not in mapped]}
+
+
+def _dm_triplet(nrow, ncol, rows, cols, vals) -> ca.DM:
+    """A sparse DM from entries (duplicates summed)."""
+    import scipy.sparse as sps
+
+    A = sps.csc_matrix((np.asarray(vals, float), (np.asarray(rows, int), np.asarray(cols, int))),
+                       shape=(nrow, ncol))
+    A.sum_duplicates()
+    A.sort_indices()
+    sp = ca.Sparsity(nrow, ncol, A.indptr.tolist(), A.indices.tolist())
+    return ca.DM(sp, A.data)
+
+
+def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, lin) -> dict:
     """IPOPT's ``jac_g`` and ``hess_lag`` for the NLP ``G(V, Q), J(V, Q)`` (linear in ``Q``)
     with ``Q = fq`` mapped over the collocation points.
 
-    ``dG/dV = dG/dV|_Q + dG/dQ dQ/dV``, where ``dG/dQ`` is constant and ``dQ/dV`` holds the
-    per-point Jacobians of ``fq``; the Lagrangian Hessian is that of the ``V``-only rows
-    (CasADi's AD with ``Q`` held) plus the per-point Hessians of ``lq . fq`` with the
-    multipliers ``lq = d(lam_f J + lam_g . G)/dQ`` (constant in ``V``), scattered into place.
+    ``dG/dV = dG/dV|_Q + dG/dQ dQ/dV``: constant collocation sums, the end rows by AD, and the
+    per-point Jacobians of ``fq`` through the constant ``dG/dQ``. The Lagrangian Hessian is
+    that of the end rows and the Mayer term (AD) plus the per-point Hessians of ``lq . fq``
+    with the multipliers ``lq = dG/dQ^T lam_g + dJ/dQ lam_f``, scattered into place.
     """
     a = prob.aug
     M, ny = pts.shape
     nq = fq.size1_out(0)
-    nV, nG = int(V.numel()), int(G.numel())
+    nV, nG = int(V.numel()), lin["nG"]
     y = ca.vertcat(a.x, a.z, a.w)
     q = fq(a.t, a.x, a.z, a.w, a.p)
     p_in = ca.MX.sym("p", 0)
-    Qz = ca.MX.zeros(nq, M)
+    Qz = ca.DM.zeros(nq, M)
+    end_rows = lin["end_rows"]
+    ends = ca.vertcat(*lin["ends"]) if lin["ends"] else ca.MX(0, 1)
     # Jacobian
     jf = ca.Function("jq", [a.t, a.x, a.z, a.w, a.p], [ca.jacobian(q, y)])
-    spj = jf.sparsity_out(0)
-    jr, jc = (np.asarray(v, int) for v in spj.get_triplet())
-    # entry e of point k: Q row k nq + jr, V column pts[k, jc]
+    jr, jc = (np.asarray(v, int) for v in jf.sparsity_out(0).get_triplet())
     qrow = (np.arange(M).reshape(-1, 1) * nq + jr).ravel()
     vcol = pts[:, jc].ravel()
     spD, perm = _pattern(nq * M, nV, qrow, vcol)
     Dnz = jf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
-    D = ca.MX(spD, ca.vec(Dnz.nz[:])[perm.tolist()]) if perm.size else ca.MX(nq * M, nV)
-    JV = ca.Function("JV", [V, Q], [ca.jacobian(G, V)])(V, Qz)
-    JQ = ca.Function("JQ", [V, Q], [ca.jacobian(G, ca.vec(Q))])(ca.DM.zeros(nV), ca.DM.zeros(
-        nq, M))
-    jac = JV + ca.mtimes(ca.DM(ca.sparsify(JQ)), D)
+    D = ca.MX(spD, Dnz.nz[:][perm.tolist()]) if perm.size else ca.MX(nq * M, nV)
+    jac = lin["JV"] + ca.mtimes(lin["JQ"], D)
+    if end_rows:
+        E = _dm_triplet(nG, len(end_rows), end_rows, np.arange(len(end_rows)),
+                        np.ones(len(end_rows)))
+        jac = jac + ca.mtimes(E, ca.jacobian(ends, V))
     jac_g = ca.Function("nlp_jac_g", [V, p_in], [G_real, jac])
     # Hessian
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nG)
-    lag = lam_f * J + ca.dot(lam_g, G)
-    HV = ca.Function("HV", [V, Q, lam_f, lam_g], [ca.triu(ca.hessian(lag, V)[0])])(
+    lag_end = lam_f * J
+    if end_rows:
+        lag_end = lag_end + ca.dot(lam_g[end_rows], ends)
+    HV = ca.Function("HV", [V, Q, lam_f, lam_g], [ca.triu(ca.hessian(lag_end, V)[0])])(
         V, Qz, lam_f, lam_g)
-    lq = ca.Function("LQ", [V, Q, lam_f, lam_g], [ca.gradient(lag, Q)])(
-        ca.DM.zeros(nV), ca.DM.zeros(nq, M), lam_f, lam_g)
+    lq = ca.mtimes(lin["JQ"].T, lam_g) + lam_f * lin["gJ"]
     lq_s = ca.SX.sym("lq", nq)
     hf = ca.Function("hq", [a.t, a.x, a.z, a.w, a.p, lq_s],
                      [ca.triu(ca.hessian(ca.dot(lq_s, q), y)[0])])
-    sph = hf.sparsity_out(0)
-    hr, hc = (np.asarray(v, int) for v in sph.get_triplet())
+    hr, hc = (np.asarray(v, int) for v in hf.sparsity_out(0).get_triplet())
     gr, gc = pts[:, hr].ravel(), pts[:, hc].ravel()
-    spH, Smat = _summed_pattern(nV, np.minimum(gr, gc), np.maximum(gr, gc))
+    H = HV
     if hr.size:
+        spH, Smat = _summed_pattern(nV, np.minimum(gr, gc), np.maximum(gr, gc))
         Hnz = hf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm, ca.reshape(lq, nq, M))
-        Hp = ca.MX(spH, ca.mtimes(Smat, ca.vec(Hnz.nz[:])))
-        H = HV + Hp
-    else:
-        H = HV
+        H = H + ca.MX(spH, ca.mtimes(Smat, Hnz.nz[:]))
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
     return {"jac_g": jac_g, "hess_lag": hess_lag}
 

@@ -20,6 +20,7 @@ import functools
 import casadi as ca
 import numpy as np
 
+from .derivatives import dm_triplet, point_hessian, point_jacobian
 from .nlp import NLPBuilder
 from .transcription import Transcription, finish, params_and_time
 
@@ -263,24 +264,12 @@ def _linear_parts(g_list, mapped, x_off, nV, nx, nz, nq, N, d, C, h, b) -> dict:
             qc.append((k_ * nq + first + c_).ravel())
             qv.append(np.ones(n))
     cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, int)  # noqa: E731
-    JVlin = _dm_triplet(nG, nV, cat(vr), cat(vc), cat(vv))
-    JQ = _dm_triplet(nG, nq * M, cat(qr), cat(qc), cat(qv))
+    JVlin = dm_triplet(nG, nV, cat(vr), cat(vc), cat(vv))
+    JQ = dm_triplet(nG, nq * M, cat(qr), cat(qc), cat(qv))
     k = np.arange(M)
-    gJ = _dm_triplet(nq * M, 1, k * nq + nx + nz, np.zeros(M, int), h * np.asarray(b)[k % d])
+    gJ = dm_triplet(nq * M, 1, k * nq + nx + nz, np.zeros(M, int), h * np.asarray(b)[k % d])
     return {"JV": JVlin, "JQ": JQ, "gJ": gJ, "end_rows": end_rows, "nG": nG,
             "ends": [g for gi, g in enumerate(g_list) if gi not in mapped]}
-
-
-def _dm_triplet(nrow, ncol, rows, cols, vals) -> ca.DM:
-    """A sparse DM from entries (duplicates summed)."""
-    import scipy.sparse as sps
-
-    A = sps.csc_matrix((np.asarray(vals, float), (np.asarray(rows, int), np.asarray(cols, int))),
-                       shape=(nrow, ncol))
-    A.sum_duplicates()
-    A.sort_indices()
-    sp = ca.Sparsity(nrow, ncol, A.indptr.tolist(), A.indices.tolist())
-    return ca.DM(sp, A.data)
 
 
 def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, lin) -> dict:
@@ -302,17 +291,12 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, li
     Qz = ca.DM.zeros(nq, M)
     end_rows = lin["end_rows"]
     ends = ca.vertcat(*lin["ends"]) if lin["ends"] else ca.MX(0, 1)
-    # Jacobian
-    jf = ca.Function("jq", [a.t, a.x, a.z, a.w, a.p], [ca.jacobian(q, y)])
-    jr, jc = (np.asarray(v, int) for v in jf.sparsity_out(0).get_triplet())
-    qrow = (np.arange(M).reshape(-1, 1) * nq + jr).ravel()
-    vcol = pts[:, jc].ravel()
-    spD, perm = _pattern(nq * M, nV, qrow, vcol)
-    Dnz = jf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
-    D = ca.MX(spD, Dnz.nz[:][perm.tolist()]) if perm.size else ca.MX(nq * M, nV)
+    args = (tc, X[:, 1:], Z[:, 1:], Wc, Pm)
+    syms = [a.t, a.x, a.z, a.w, a.p]
+    D = point_jacobian(q, y, syms, args, pts, nV)
     jac = lin["JV"] + ca.mtimes(lin["JQ"], D)
     if end_rows:
-        E = _dm_triplet(nG, len(end_rows), end_rows, np.arange(len(end_rows)),
+        E = dm_triplet(nG, len(end_rows), end_rows, np.arange(len(end_rows)),
                         np.ones(len(end_rows)))
         jac = jac + ca.mtimes(E, ca.jacobian(ends, V))
     jac_g = ca.Function("nlp_jac_g", [V, p_in], [G_real, jac])
@@ -324,37 +308,7 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, li
     HV = ca.Function("HV", [V, Q, lam_f, lam_g], [ca.triu(ca.hessian(lag_end, V)[0])])(
         V, Qz, lam_f, lam_g)
     lq = ca.mtimes(lin["JQ"].T, lam_g) + lam_f * lin["gJ"]
-    lq_s = ca.SX.sym("lq", nq)
-    hf = ca.Function("hq", [a.t, a.x, a.z, a.w, a.p, lq_s],
-                     [ca.triu(ca.hessian(ca.dot(lq_s, q), y)[0])])
-    hr, hc = (np.asarray(v, int) for v in hf.sparsity_out(0).get_triplet())
-    gr, gc = pts[:, hr].ravel(), pts[:, hc].ravel()
-    H = HV
-    if hr.size:
-        spH, Smat = _summed_pattern(nV, np.minimum(gr, gc), np.maximum(gr, gc))
-        Hnz = hf.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm, ca.reshape(lq, nq, M))
-        H = H + ca.MX(spH, ca.mtimes(Smat, Hnz.nz[:]))
+    Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
+    H = HV if Hp is None else HV + Hp
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
     return {"jac_g": jac_g, "hess_lag": hess_lag}
-
-
-def _pattern(nrow, ncol, rows, cols):
-    """The sparsity of distinct entries ``(rows, cols)`` and the permutation that puts
-    values given in entry order into its (column-major) nonzero order."""
-    key = np.asarray(cols, np.int64) * nrow + np.asarray(rows, np.int64)
-    order = np.argsort(key, kind="stable")
-    sp = ca.Sparsity.triplet(nrow, ncol, np.asarray(rows)[order].tolist(),
-                             np.asarray(cols)[order].tolist())
-    return sp, order
-
-
-def _summed_pattern(n, rows, cols):
-    """The sparsity of the entries ``(rows, cols)`` (duplicates summed) and the 0/1 matrix
-    that sums values given in entry order into its nonzeros."""
-    key = np.asarray(cols, np.int64) * n + np.asarray(rows, np.int64)
-    uniq, inv = np.unique(key, return_inverse=True)
-    sp = ca.Sparsity.triplet(n, n, (uniq % n).tolist(), (uniq // n).tolist())
-    # one 1 per column (entry e sums into nonzero inv[e]), given in compressed columns
-    A = ca.Sparsity(int(uniq.size), int(key.size), list(range(key.size + 1)),
-                    inv.astype(int).tolist())
-    return sp, ca.DM(A, 1.0)

@@ -954,3 +954,36 @@ def test_closed_form_collocation_derivatives_match_casadi_ad(case):
         for A, R in ((J_cf, J_ref), (H_cf, H_ref)):
             A, R = np.asarray(ca.densify(A)), np.asarray(ca.densify(R))
             assert np.max(np.abs(A - R)) <= 1e-10 * max(1.0, np.max(np.abs(R)))
+
+
+def test_quadratic_composite_derivatives_match_casadi_ad():
+    """The blend's closed-form derivatives (f quadratic in (V, Q), g linear in Q, Q a model
+    mapped over points: daekit.ocp.derivatives.quadratic_composite) equal CasADi's AD of the
+    composed NLP at random points and multipliers."""
+    from daekit.ocp.derivatives import quadratic_composite
+
+    rng = np.random.default_rng(2)
+    K, ny = 4, 2
+    y = ca.SX.sym("y", ny)
+    t = ca.SX.sym("t")
+    q = ca.vertcat(ca.sin(y[0]) * y[1] + t, y[0] ** 2 + y[1] ** 3, ca.exp(0.3 * y[1]))
+    V = ca.MX.sym("V", K * ny)
+    Q = ca.MX.sym("Q", 3, K)
+    A, Bm = rng.standard_normal((5, K * ny)), rng.standard_normal((5, 3 * K))
+    f = ca.sumsqr(ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1) + ca.sum2(Q[2, :])
+    g = ca.vec(Q[:2, 1:])
+    pts = np.arange(K * ny).reshape(K, ny)
+    ts = ca.DM(np.linspace(0, 1, K)).T
+    f_r, g_r, opts = quadratic_composite(V, Q, f, g, q, y, [t, y], (ts, ca.reshape(V, ny, K)),
+                                         pts)
+    lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", g.numel())
+    ref = ca.Function("ref", [V, lf, lg], [ca.gradient(f_r, V), ca.jacobian(g_r, V),
+                                           ca.triu(ca.hessian(lf * f_r + ca.dot(lg, g_r), V)[0])])
+    for _ in range(3):
+        v, lam = rng.standard_normal(K * ny), rng.standard_normal(g.numel())
+        gr, jg, H = ref(v, 0.8, lam)
+        cf = (opts["grad_f"](v, [])[1], opts["jac_g"](v, [])[1],
+              opts["hess_lag"](v, [], 0.8, lam))
+        for A_, R_ in zip(cf, (gr, jg, H), strict=True):
+            A_, R_ = np.asarray(ca.densify(A_)), np.asarray(ca.densify(R_))
+            assert np.max(np.abs(A_ - R_)) <= 1e-10 * max(1.0, np.max(np.abs(R_)))

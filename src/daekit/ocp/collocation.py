@@ -203,8 +203,10 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
 #: closed form (fixed final time and parameters): the NLP is linear in the model's outputs
 #: at the collocation points, so its derivatives are the per-point derivatives of the model
 #: (small SX functions, mapped over the points) scattered into place, plus CasADi's AD of
-#: the few rows at the ends. Measured against CasADi's AD of the MX NLP (nlpsol build /
-#: IPOPT run, CPU): see the benchmark's NLP stage.
+#: the few rows at the ends. Measured (CPU, transcription + nlpsol + IPOPT, best of 5)
+#: against CasADi's AD of the MX NLP: planar swing 0.049 -> 0.038 s, Betts 10.103 0.085 ->
+#: 0.069 s, cart-pole 0.065 -> 0.047 s (nlpsol 0.02-0.03 -> 0.005 s; the Hessian evaluates
+#: 4x faster, the Jacobian 2-3x); the same iterations and optima.
 STRUCTURED = True
 
 

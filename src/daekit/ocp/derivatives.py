@@ -17,16 +17,24 @@ __all__ = ["dm_triplet", "pattern", "summed_pattern", "point_jacobian", "point_h
            "quadratic_composite"]
 
 
-def dm_triplet(nrow, ncol, rows, cols, vals) -> ca.DM:
-    """A sparse DM from entries (duplicates summed)."""
-    import scipy.sparse as sps
+def _ccs(nrow, ncol, keys):
+    """The sparsity of the sorted distinct column-major keys ``col * nrow + row``."""
+    cols = keys // nrow
+    colind = np.searchsorted(cols, np.arange(ncol + 1), side="left")
+    return ca.Sparsity(int(nrow), int(ncol), colind.tolist(), (keys % nrow).tolist())
 
-    A = sps.csc_matrix((np.asarray(vals, float), (np.asarray(rows, int), np.asarray(cols, int))),
-                       shape=(nrow, ncol))
-    A.sum_duplicates()
-    A.sort_indices()
-    sp = ca.Sparsity(nrow, ncol, A.indptr.tolist(), A.indices.tolist())
-    return ca.DM(sp, A.data)
+
+def dm_triplet(nrow, ncol, rows, cols, vals) -> ca.DM:
+    """A sparse DM from entries (duplicates summed).
+
+    >>> dm_triplet(2, 2, [0, 1, 0], [0, 1, 0], [1.0, 2.0, 3.0]).full().tolist()
+    [[4.0, 0.0], [0.0, 2.0]]
+    """
+    key = np.asarray(cols, np.int64) * nrow + np.asarray(rows, np.int64)
+    uniq, inv = np.unique(key, return_inverse=True)
+    data = np.bincount(inv.ravel(), weights=np.asarray(vals, float).ravel(),
+                       minlength=uniq.size)
+    return ca.DM(_ccs(nrow, ncol, uniq), ca.DM(data))
 
 
 def pattern(nrow, ncol, rows, cols):
@@ -34,9 +42,7 @@ def pattern(nrow, ncol, rows, cols):
     values given in entry order into its (column-major) nonzero order."""
     key = np.asarray(cols, np.int64) * nrow + np.asarray(rows, np.int64)
     order = np.argsort(key, kind="stable")
-    sp = ca.Sparsity.triplet(nrow, ncol, np.asarray(rows)[order].tolist(),
-                             np.asarray(cols)[order].tolist())
-    return sp, order
+    return _ccs(nrow, ncol, key[order]), order
 
 
 def summed_pattern(n, rows, cols):
@@ -44,11 +50,10 @@ def summed_pattern(n, rows, cols):
     that sums values given in entry order into its nonzeros."""
     key = np.asarray(cols, np.int64) * n + np.asarray(rows, np.int64)
     uniq, inv = np.unique(key, return_inverse=True)
-    sp = ca.Sparsity.triplet(n, n, (uniq % n).tolist(), (uniq // n).tolist())
     # one 1 per column (entry e sums into nonzero inv[e]), given in compressed columns
     A = ca.Sparsity(int(uniq.size), int(key.size), list(range(key.size + 1)),
-                    inv.astype(int).tolist())
-    return sp, ca.DM(A, 1.0)
+                    inv.ravel().astype(int).tolist())
+    return _ccs(n, n, uniq), ca.DM(A, 1.0)
 
 
 def point_jacobian(q, y, syms, args, pts, nV) -> ca.MX:

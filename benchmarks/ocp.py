@@ -18,7 +18,11 @@ boundary conditions, the same initial guess (daekit's, sampled on the grid), bui
 the two counting, and daekit's IPOPT options (``mumps_permuting_scaling = 0``, ``max_iter = 1000``). daekit's
 time is everything from ``OCP(...)`` (model reduction, boundary analysis, guess, transcription,
 IPOPT) to the solution; Opti's is building and solving its NLP (its guess is given). Each side
-runs ``REPEAT`` times alternately; the best wall times are shown.
+runs ``REPEAT`` times alternately; the best wall times are shown. A second table splits
+daekit's CPU time into its stages (model and reduction, compile, default guess, boundary
+analysis, NLP: transcription, nlpsol, IPOPT, solution) beside Opti's build + solve; daekit's
+NLP stage differs from Opti's in giving IPOPT the derivatives in closed form
+(:data:`daekit.ocp.collocation.STRUCTURED`).
 
 Run: ``python benchmarks/ocp.py [REPEAT]``
 """

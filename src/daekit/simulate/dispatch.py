@@ -208,7 +208,8 @@ def simulate(
         projects the recorded points (``project_output``);
         ``"dummy_derivatives"`` needs ``r`` from ``reduce_index(model,
         method="dummy_derivatives")`` and re-selects the states when the selection's pivot
-        degrades (``stats["selection_switches"]``).
+        degrades (``stats["selection_switches"]``); such an ``r`` is always simulated this
+        way (None means it too: a fixed selection is valid only while its pivot is regular).
     rtol, atol : float
         IDAS tolerances (default 1e-8 each). RATTLE takes fixed steps ``dt`` and no
         tolerances: given with ``method="rattle"`` they warn and are not used.
@@ -318,6 +319,10 @@ def simulate(
             return traj
     options = {k: v for k, v in options.items() if k not in event_keys}
     stabilization = _stabilization(stabilization)
+    if stabilization is None and getattr(r, "method", "") == "dummy_derivatives":
+        # a dummy-derivative selection holds only while its pivot is regular: without the
+        # re-selection monitor the run would cross the singularity onto a wrong solution
+        stabilization = "dummy_derivatives"
     for name, tol in (("rtol", rtol), ("atol", atol)):
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
             raise InputError(f"simulate: {name} must be a positive number, got {tol!r}")

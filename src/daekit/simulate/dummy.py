@@ -218,13 +218,10 @@ def simulate_dummy(r, tg, x0, z0, inputs, pv, rtol, atol, options, progress: boo
     d = Driver(system, tg, x0, z0, pv, [mon], progress=progress, label="dummy derivatives")
     res = d.run()
     for part in res.parts:  # the original constraints to rounding at the recorded points
-        sy, ts, xs, zs = part
-        if ts and sy.nz:
-            T = np.asarray(ts, float)
-            X = np.asarray(xs, float).reshape(T.size, sy.nx)
-            Z = sy.polish_z(T, X, np.asarray(zs, float).reshape(T.size, sy.nz),
-                            sy.sig.values(T), pv)
-            part[3][:] = list(Z)
+        sy = part[0]
+        T, X, Z = res.arrays(part)
+        if T.size and sy.nz:
+            res.set_rows(part, X, sy.polish_z(T, X, Z, sy.sig.values(T), pv))
     return res.trajectory({"selection_switches": mon.switches,
                            "selections_declined": mon.declined})
 

@@ -41,9 +41,9 @@ import scipy.sparse as sp
 
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
-from .trajectory import Trajectory
+from .trajectory import LazyColumns, Trajectory
 
-__all__ = ["System", "system_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
+__all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
 
 _IDA_REASONS = {
@@ -107,9 +107,13 @@ def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str,
     """
     buf, ev = F.buffer()
     keep = []
+    # inputs not given stay unbound (CasADi reads a null input as zeros) and outputs not asked
+    # for unbound (not computed: an integrator's adjoint outputs cost a third of a short run)
     for i, name in enumerate(F.name_in()):
         a = args.get(name)
-        a = np.zeros(F.nnz_in(i)) if a is None else np.ascontiguousarray(a, dtype=float).ravel()
+        if a is None:
+            continue
+        a = np.ascontiguousarray(a, dtype=float).ravel()
         if a.size != F.nnz_in(i):
             raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
         keep.append(a)
@@ -117,13 +121,14 @@ def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str,
     res = {}
     for i, name in enumerate(F.name_out()):
         shape = outs.get(name)
-        r = np.zeros(shape if shape is not None else F.nnz_out(i))
+        if shape is None:
+            continue
+        r = np.zeros(shape)
         if r.size != F.nnz_out(i):
             raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
         keep.append(r)
         buf.set_res(i, memoryview(r))
-        if shape is not None:
-            res[name] = r
+        res[name] = r
     ev()
     if want_stats:
         try:
@@ -203,6 +208,7 @@ class Evaluator:
                 rest_names.append(n)
                 rest.append(e)
         self.rest_names = rest_names
+        self._r = r
         inv = r.invariants if r.invariants.numel() else ca.SX(0, 1)
         allv = ca.vertcat(*rest) if rest else ca.SX(0, 1)
         self.nv = int(allv.numel())
@@ -232,6 +238,26 @@ class Evaluator:
         out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
                              ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.ninv)})
         return out[fm.name_out(0)][:n]
+
+    def values(self, t, X, Z, U, p):
+        """``({name: (N,)} of the variables that are not plain elements, None)``: one mapped
+        call of the rest (the invariants are :meth:`invariants`)."""
+        n = t.size
+        if n == 0 or not self.nv:
+            return {k: np.zeros(n) for k in self.rest_names}, None
+        if "rest" not in self.__dict__:
+            r = self._r
+            allv = ca.vertcat(*[ca.SX(r.variables[k]) if k in r.variables else
+                                r.u[r.u_names.index(k)] for k in self.rest_names])
+            self.rest = ca.Function("evaluate_rest", [r.t, r.x, r.z, r.u, r.p], [allv])
+        m = _padded(n)
+        fm = self._mapped(self.rest, m)
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
+        ni = fm.name_in()
+        out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
+                             ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.nv)})
+        V = out[fm.name_out(0)][:n].T
+        return {k: np.ascontiguousarray(V[i]) for i, k in enumerate(self.rest_names)}, None
 
     def __call__(self, t, X, Z, U, p):
         """t (N,), X (N, nx), Z (N, nz), U (N, nu) -> (values dict, invariants (N, ninv))."""
@@ -278,10 +304,27 @@ def _pad(A, m: int) -> np.ndarray:
 
 
 def make_trajectory(r, tg, X, Z, U, pv, stats, evaluator: Evaluator | None = None) -> Trajectory:
-    """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``."""
+    """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``: the values that
+    are elements of ``x``, ``z``, ``u`` at once, the other variables and the invariants when
+    first read (:class:`~daekit.simulate.trajectory.LazyColumns`, one mapped CasADi call)."""
     ev = evaluator or Evaluator(r)
-    vals, inv = ev(np.asarray(tg, dtype=float), X, Z, U, pv)
-    return Trajectory(tg, vals, inv, list(r.invariant_names), stats)
+    tg = np.asarray(tg, dtype=float).ravel()
+    n = tg.size
+    X = np.array(X, dtype=float, copy=True).reshape(n, r.nx)
+    Z = np.array(Z, dtype=float, copy=True).reshape(n, r.nz)
+    U = np.array(U, dtype=float, copy=True).reshape(n, r.nu)
+    pv = np.asarray(pv, dtype=float).ravel()
+    arrays = {"x": X, "z": Z, "u": U}
+    ready = {k: arrays[a][:, i] for k, (a, i) in ev.direct.items()}
+    ready.update({k: np.full(n, v) for k, v in ev.const.items()})
+
+    def rest() -> dict:
+        vals, _ = ev.values(tg, X, Z, U, pv)
+        return vals
+
+    cols = LazyColumns(ready, ev.rest_names, rest, order=ev.names)
+    inv = (lambda: ev.invariants(tg, X, Z, U, pv)) if ev.ninv else None
+    return Trajectory(tg, cols, inv, list(r.invariant_names), stats)
 
 
 def reraise_input_error(system: System) -> None:
@@ -298,6 +341,28 @@ def _fingerprint(r) -> tuple:
     return (id(r.ode), id(r.alg), id(r.invariants), id(r.variables), id(r.x), id(r.z))
 
 
+def signal_for(r, inputs: Mapping | None) -> InputSignal:
+    """The :class:`~daekit.inputs.InputSignal` of ``r`` for ``inputs``; without inputs (all
+    controls zero, the common case) built once and kept on ``r``.
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
+    >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -x, ca.SX(0, 1),
+    ...     ca.SX(0, 1), [], ["x"], [], [], [], np.zeros(0), {"x": x})
+    >>> signal_for(r, None) is signal_for(r, {})
+    True
+    """
+    if inputs:
+        return InputSignal(r, inputs)
+    sig = r.__dict__.get("_daekit_signal")
+    if sig is None or sig.r is not r:  # (a copy of r shares its entries: not its signal)
+        sig = InputSignal(r, None)
+        sig.default = True  # no inputs given: the key of system_for needs no serialization
+        r.__dict__["_daekit_signal"] = sig
+    return sig
+
+
 def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> System:
     """The :class:`System` of ``r`` for these inputs and settings, built once and kept on ``r``
     (no global cache: it is freed with ``r``). Callable inputs are never cached."""
@@ -306,7 +371,8 @@ def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) 
     try:
         # the input by its serialized function, not its printed form: printing rounds
         # constants to ~6 digits, and two different inputs must not share an integrator
-        u_key = ca.Function("u_key", [r.t], [sig.expr]).serialize()
+        u_key = "none" if getattr(sig, "default", False) else \
+            ca.Function("u_key", [r.t], [sig.expr]).serialize()
         key = (_fingerprint(r), u_key, float(rtol), float(atol), repr(sorted(options.items())))
     except Exception:  # noqa: BLE001 - unprintable option: no caching
         return System(r, sig, rtol, atol, options)
@@ -382,6 +448,15 @@ class System:
         z = np.asarray(z, dtype=float).ravel().copy()
         if self.nz == 0:
             return z
+        if getattr(self, "_alg_res", None) is None:
+            r = self.r
+            alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+            self._alg_res = ca.Function("alg_res", [r.t, r.x, r.z, r.u, r.p], [alg],
+                                        ["t", "x", "z", "u", "p"], ["alg"])
+        g = fast_call(self._alg_res, {"t": np.array([float(t)]), "x": x, "z": z, "u": u,
+                                      "p": p}, {"alg": (self.nz,)})["alg"]
+        if np.all(np.isfinite(g)) and np.max(np.abs(g)) < 1e-14 * (1 + np.max(np.abs(z))):
+            return z  # already consistent (the common case: one cheap evaluation)
         for _ in range(iters):
             g, Jz = self.alg_fun(t, x, z, u, p)
             g = np.asarray(g, dtype=float).ravel()

@@ -173,7 +173,7 @@ class Projector:
         return w[: self.nx], w[self.nx:], dx
 
 
-    def project_rows(self, T, X, Z, U, p, iters: int = 3, chunk: int = 1024):
+    def project_rows(self, T, X, Z, U, p, iters: int = 2, chunk: int = 1024):
         """Project many rows at once (the recorded output points): batched Gauss--Newton with
         the minimum-norm step ``dw = -D^+ J^T (J D^+ J^T)^{-1} h`` (small ``nh x nh`` solves,
         ``z`` free) where ``nx + nz + nh <= 96``, in chunks of ``chunk`` rows; else row by row
@@ -211,9 +211,10 @@ class Projector:
             h = self.fun(t, w, u, pp)
             self._dense = ca.Function("proj_dense", [t, w, u, pp],
                                       [h, ca.densify(ca.jacobian(h, w))])
+            self._honly = ca.Function("proj_h", [t, w, u, pp], [h])
         if m not in self._maps:
-            self._maps[m] = self._dense.map(m)
-        F = self._maps[m]
+            self._maps[m] = (self._dense.map(m), self._honly.map(m))
+        F, Fh = self._maps[m]
 
         def pad(A):
             A = np.asarray(A, float)
@@ -225,29 +226,41 @@ class Projector:
         Tp, Up = pad(T), pad(U)
         P = np.repeat(np.asarray(p, float).reshape(1, -1), m, axis=0)
         ni, no = F.name_in(), F.name_out()
+        args = {ni[0]: Tp, ni[1]: W, ni[2]: Up, ni[3]: P}
         if self.rtol is not None:
             wx = 1.0 / (self.atol + self.rtol * np.abs(W[:, :nx])) ** 2
             Dinv = np.max(wx, axis=1, keepdims=True) / wx  # D^+ on x; z: free (large)
         else:
             Dinv = np.repeat((1.0 / self.weights)[None, :], m, axis=0)
         Dinv = np.hstack([Dinv, np.full((m, nz), 1e8 * np.max(Dinv, initial=1.0))])
-        for _ in range(iters):
-            out = fast_call(F, {ni[0]: Tp, ni[1]: W, ni[2]: Up, ni[3]: P},
-                            {no[0]: (m, nh), no[1]: (m, n, nh)})
-            H = out[no[0]]
-            if not np.all(np.isfinite(H)) or np.max(np.abs(H)) < 1e-14 * (1 + np.max(np.abs(W))):
-                break
-            J = np.transpose(out[no[1]], (0, 2, 1))  # (m, nh, n)
-            JD = J * Dinv[:, None, :]
-            M = np.einsum("kij,klj->kil", JD, J)
+        # Gauss--Newton with the matrix of the first step kept (simplified Newton): the rows
+        # are within drift_tol of the manifold, so the first step leaves O(drift^2) and the
+        # next ones need only h (a third of the cost of h with its Jacobian)
+        out = fast_call(F, args, {no[0]: (m, nh), no[1]: (m, n, nh)})
+        H = out[no[0]]
+        tiny = 1e-14 * (1 + np.max(np.abs(W), axis=1))
+        if not np.all(np.isfinite(H)) or np.all(np.max(np.abs(H), axis=1) < tiny):
+            return X, Z
+        J = np.transpose(out[no[1]], (0, 2, 1))  # (m, nh, n)
+        JD = J * Dinv[:, None, :]
+        M = JD @ np.transpose(J, (0, 2, 1))
+        JDt = np.transpose(JD, (0, 2, 1))
+        rows = np.arange(m)
+        for k in range(iters):
+            if k:
+                args[ni[1]] = W
+                H = fast_call(Fh, args, {Fh.name_out(0): (m, nh)})[Fh.name_out(0)]
+                rows = np.nonzero(np.max(np.abs(H), axis=1) >= tiny)[0]
+                if rows.size == 0:
+                    break
             try:
-                lam = np.linalg.solve(M, H[..., None])[..., 0]
+                lam = np.linalg.solve(M[rows], H[rows][..., None])
             except np.linalg.LinAlgError:
                 break
-            dW = -np.einsum("kij,ki->kj", JD, lam)
+            dW = (JDt[rows] @ lam)[..., 0]
             if not np.all(np.isfinite(dW)):
                 break
-            W = W + dW
+            W[rows] = W[rows] - dW
         W = W[:N]
         ok = np.all(np.isfinite(W), axis=1)
         W[~ok] = W0[:N][~ok]

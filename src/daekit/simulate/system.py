@@ -42,6 +42,7 @@ import scipy.sparse as sp
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
 from .trajectory import LazyColumns, Trajectory
+from .vectorized import evaluate_rows, fast_call
 
 __all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
@@ -90,52 +91,6 @@ class IntegrationFailure(RuntimeError):
     def __init__(self, message: str, t: float, text: str, why: str) -> None:
         super().__init__(message)
         self.t, self.text, self.why = t, text, why
-
-
-def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
-              want_stats: bool = False) -> dict:
-    """Call a CasADi Function writing straight into NumPy arrays (``Function.buffer``).
-
-    Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's column-major
-    ``(size, points)``; ``outs`` maps output names to such shapes.
-
-    >>> import casadi as ca, numpy as np
-    >>> x = ca.SX.sym("x", 2)
-    >>> F = ca.Function("f", [x], [2 * x], ["x"], ["y"])
-    >>> fast_call(F, {"x": np.array([1.0, 2.0])}, {"y": (2,)})["y"].tolist()
-    [2.0, 4.0]
-    """
-    buf, ev = F.buffer()
-    keep = []
-    # inputs not given stay unbound (CasADi reads a null input as zeros) and outputs not asked
-    # for unbound (not computed: an integrator's adjoint outputs cost a third of a short run)
-    for i, name in enumerate(F.name_in()):
-        a = args.get(name)
-        if a is None:
-            continue
-        a = np.ascontiguousarray(a, dtype=float).ravel()
-        if a.size != F.nnz_in(i):
-            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
-        keep.append(a)
-        buf.set_arg(i, memoryview(a))
-    res = {}
-    for i, name in enumerate(F.name_out()):
-        shape = outs.get(name)
-        if shape is None:
-            continue
-        r = np.zeros(shape)
-        if r.size != F.nnz_out(i):
-            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
-        keep.append(r)
-        buf.set_res(i, memoryview(r))
-        res[name] = r
-    ev()
-    if want_stats:
-        try:
-            res["_stats"] = buf.stats()
-        except Exception:  # noqa: BLE001
-            res["_stats"] = {}
-    return res
 
 
 def to_scipy(M: ca.DM) -> sp.csc_matrix:
@@ -231,13 +186,8 @@ class Evaluator:
         n = t.size
         if n == 0 or self.ninv == 0:
             return np.zeros((n, self.ninv))
-        m = _padded(n)
-        fm = self._mapped(self.inv_fun, m)
-        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
-        ni = fm.name_in()
-        out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
-                             ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.ninv)})
-        return out[fm.name_out(0)][:n]
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+        return evaluate_rows(self.inv_fun, [t, X, Z, U, P], self._maps.setdefault("inv", {}))[0]
 
     def values(self, t, X, Z, U, p):
         """``({name: (N,)} of the variables that are not plain elements, None)``: one mapped
@@ -250,13 +200,8 @@ class Evaluator:
             allv = ca.vertcat(*[ca.SX(r.variables[k]) if k in r.variables else
                                 r.u[r.u_names.index(k)] for k in self.rest_names])
             self.rest = ca.Function("evaluate_rest", [r.t, r.x, r.z, r.u, r.p], [allv])
-        m = _padded(n)
-        fm = self._mapped(self.rest, m)
-        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
-        ni = fm.name_in()
-        out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
-                             ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.nv)})
-        V = out[fm.name_out(0)][:n].T
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+        V = evaluate_rows(self.rest, [t, X, Z, U, P], self._maps.setdefault("rest", {}))[0].T
         return {k: np.ascontiguousarray(V[i]) for i, k in enumerate(self.rest_names)}, None
 
     def __call__(self, t, X, Z, U, p):
@@ -487,26 +432,16 @@ class System:
             self._alg_dense = ca.Function("alg_dense", [r.t, r.x, r.z, r.u, r.p],
                                           [alg, ca.densify(ca.jacobian(alg, r.z))])
             self._alg_maps = {}
-        m = _padded(n)
-        if m not in self._alg_maps:
-            if len(self._alg_maps) > 8:
-                self._alg_maps.clear()
-            self._alg_maps[m] = self._alg_dense.map(m)
-        F = self._alg_maps[m]
-        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
-        ni, no = F.name_in(), F.name_out()
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
         nz = self.nz
-        T, X, U = _pad(np.asarray(T, float).ravel(), m), _pad(X, m), _pad(U, m)
-        Z = _pad(Z, m)
+        T, X, U = np.asarray(T, float).ravel(), np.asarray(X, float), np.asarray(U, float)
         for _ in range(iters):
-            out = fast_call(F, {ni[0]: T, ni[1]: X, ni[2]: Z, ni[3]: U, ni[4]: P},
-                            {no[0]: (m, nz), no[1]: (m, nz, nz)})
-            g = out[no[0]]
+            g, Jnz = evaluate_rows(self._alg_dense, [T, X, Z, U, P], self._alg_maps)
             if not np.all(np.isfinite(g)):
                 break
             if np.max(np.abs(g)) < 1e-15 * (1 + np.max(np.abs(Z))):
                 break
-            J = np.transpose(out[no[1]], (0, 2, 1))  # column-major blocks
+            J = np.transpose(Jnz.reshape(n, nz, nz), (0, 2, 1))  # column-major blocks
             try:
                 dz = np.linalg.solve(J, -g[..., None])[..., 0]
             except np.linalg.LinAlgError:
@@ -514,7 +449,7 @@ class System:
             if not np.all(np.isfinite(dz)):
                 break
             Z += dz
-        return Z[:n]
+        return Z
 
     def step0(self, x0, xdot0, span: float) -> float:
         """The first step: IDAS's own rule ``min(1e-3 span, 0.5 / ||xdot0||_wrms)`` with ``span``

@@ -229,12 +229,12 @@ def test_definitions_are_the_reductions_eliminations():
     a = dk.analyze(m)
     r = dk.reduce_index(m)
     assert r.invariant_names == ["A", "B", "rod", "d/dt rod"]  # the cyclic definitions stay
-    assert a.definitions == [e["equation"] for e in r.info["eliminated"]] == []
+    assert a.definitions == [e["equation"] for e in r.eliminated] == []
     text = a.explain()
     assert "Consistency conditions (must hold at the initial time): A, B, rod, d/dt rod." in text
     assert "by construction" not in text
     m3 = dk.examples.pendulum3d()
-    assert dk.analyze(m3).definitions == [e["equation"] for e in dk.reduce_index(m3).info["eliminated"]]
+    assert dk.analyze(m3).definitions == [e["equation"] for e in dk.reduce_index(m3).eliminated]
 
 
 def test_easy_test_blockwise_rank_above_the_dense_limit():

@@ -60,7 +60,7 @@ def test_stabilizers_format_and_ocp_accept_models_too():
     init = dk.initialize(rb, fixed={"x": np.sin(TH), "der(x)": 0.0}, guess={"y": -0.5})
     tr = dk.simulate(rb, t, init, rtol=1e-10, atol=1e-10)
     assert np.abs(tr["x"] - pendulum_planar(t, TH)["x"]).max() < 1e-7
-    assert dk.ggl(m).info["index"] == 2
+    assert dk.ggl(m).index == 2
     assert dk.format_reduced(m).startswith("pendulum_planar reduced by differentiate")
     ocp = dk.OCP(dk.examples.lagrangian_pendulum3d(), t_final=1.0, intervals=5)
     assert ocp is not None

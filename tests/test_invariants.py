@@ -40,8 +40,8 @@ def test_declared_invariant_joins_the_found_ones():
     m = inv.rigid_body()
     r = dk.reduce_index(m)
     assert r.invariant_names == ["unit"]
-    assert r.info["declared_invariants"] == ["unit"]
-    assert r.info["chains"][-1]["declared"]
+    assert r.declared_invariants == ["unit"]
+    assert r.chains[-1]["declared"]
     a = dk.analyze(m)
     assert (a.index, a.dof, a.declared_invariants) == (0, 6, ["unit"])
     text = a.explain()
@@ -166,7 +166,7 @@ def test_rigid_body_baumgarte_one_pole():
     # c' = -a c: started off the manifold, |q|^2 - 1 decays like exp(-t) (pole -1)
     r = dk.reduce_index(inv.rigid_body())
     rb = dk.baumgarte(r, poles=(-1.0,))
-    assert rb.z_names[-1] == "mu(unit)" and rb.info["alg_names"][-1] == "d/dt unit + 1 unit"
+    assert rb.z_names[-1] == "mu(unit)" and rb.alg_names[-1] == "d/dt unit + 1 unit"
     x0 = np.array([1.001, 0.0, 0.0, 0.0, 1.0, 0.0, 2.0])
     t = np.linspace(0.0, 3.0, 31)
     tr = dk.simulate(r, t, x0, stabilization="baumgarte", poles=(-2.0,), rtol=1e-10,
@@ -222,7 +222,7 @@ def test_rigid_body_dummy_derivatives_hold_the_norm_by_construction():
     st = r.state_selection["stages"][-1]
     assert st["stage"] == "declared" and st["dummies"] == ["q[0]"]
     assert r.x_names == ["q[1]", "q[2]", "q[3]", "w[0]", "w[1]", "w[2]"]
-    assert r.info["alg_names"][-1] == "unit"
+    assert r.alg_names[-1] == "unit"
     # the pivot 2 q[0] degrades where q[0] -> 0: the selection condition says so
     z = np.zeros(r.nz)
     z[r.z_names.index("q[0]")] = 1e-6

@@ -100,7 +100,7 @@ def test_pendulum3d_model_is_index3_and_names_work():
         assert m.resolve(name)  # the model knows every name of the index-1 form
     # the index-1 form and the model share symbols: variables are the model's own
     assert ca.is_equal(r.variables["der(p)[0]"], m.variables["p"].der(1)[0])
-    assert r.model is m and r.info["lagrangian"] is sys3
+    assert r.model is m and r.lagrangian is sys3
     assert not sys3.is_conservative and sys3.has_constant_mass_matrix
 
 
@@ -356,8 +356,8 @@ def test_error_undeclared_symbol_and_redundant_constraints():
 # ----------------------------------------------------------------------------- stabilization
 def test_index1_carries_invariant_chains_like_reduce_index():
     r = lagrangian_pendulum3d().index1()
-    assert r.info["chains"] == [{"equation": "rod", "row": 3, "invariants": [0, 1], "alg": 3}]
-    assert r.info["alg_names"] == ["motion[0]", "motion[1]", "motion[2]", "d2/dt2 rod"]
+    assert r.chains == [{"equation": "rod", "row": 3, "invariants": [0, 1], "alg": 3}]
+    assert r.alg_names == ["motion[0]", "motion[1]", "motion[2]", "d2/dt2 rod"]
     # Baumgarte with poles (-1, -1) adds c'' + 2 c' + c on the c'' row: 2 p.v + (p.p - L^2)/2
     rb = dk.baumgarte(r, poles=(-1.0, -1.0))
     diff = _fun(r, rb.alg - r.alg)
@@ -367,7 +367,7 @@ def test_index1_carries_invariant_chains_like_reduce_index():
         np.testing.assert_allclose(got, [0, 0, 0, 2 * p @ v + 0.5 * (p @ p - 1.3**2)],
                                    rtol=1e-13, atol=1e-13)
     rg = dk.ggl(r)
-    assert rg.z_names[-1] == "mu(rod)" and rg.info["index"] == 2
+    assert rg.z_names[-1] == "mu(rod)" and rg.index == 2
     assert rg.info["ggl_positions"] == ["p[0]", "p[1]", "p[2]"]
 
 

@@ -87,7 +87,7 @@ def test_every_example_reduces_to_index1(name):
         assert n in r.variables
     assert len(r.x_names) == r.nx and len(r.z_names) == r.nz and len(r.u_names) == r.nu
     # DOF: states minus invariants equals Pryce's DOF (sum d - sum c)
-    c, d = r.info["offsets"]["c"], r.info["offsets"]["d"]
+    c, d = r.offsets["c"], r.offsets["d"]
     assert r.nx - len(r.invariant_names) == int(d.sum() - c.sum())
     # dummy derivatives: square and index 1 as well, with x = DOF states
     rd = reduce_index(m, method="dummy_derivatives")
@@ -137,14 +137,14 @@ def test_pendulum3d_states_eliminated_kkt_form():
     assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
     assert r.z_names == ["der(v)[0]", "der(v)[1]", "der(v)[2]", "z"]
     assert r.invariant_names == ["rod", "d/dt rod"]
-    assert r.info["alg_names"] == ["newton[0]", "newton[1]", "newton[2]", "d2/dt2 rod"]
+    assert r.alg_names == ["newton[0]", "newton[1]", "newton[2]", "d2/dt2 rod"]
     v = r.model.variables["v"]
     for i in range(3):
         assert ca.is_equal(r.variables[f"der(p)[{i}]"], v.sym[i])
         assert ca.is_equal(r.variables[f"der(p,2)[{i}]"], v.der(1)[i])
     # p' = v
     assert all(ca.is_equal(r.ode[i], v.sym[i]) for i in range(3))
-    assert [e["variable"] for e in r.info["eliminated"]] == [f"der(p)[{i}]" for i in range(3)]
+    assert [e["variable"] for e in r.eliminated] == [f"der(p)[{i}]" for i in range(3)]
     _pendulum3d_invariant_check(r, with_der_p=False)
 
 
@@ -245,7 +245,7 @@ def test_nonconstant_coefficient_is_not_eliminated():
     m.equation(m.der(v) - T, name="n")
     m.equation(x - ca.sin(m.t), name="track")
     r = reduce_index(m, eliminate="states")
-    assert r.info["eliminated"] == []
+    assert r.eliminated == []
     assert "der(x)" in r.x_names and r.invariant_names == ["k", "track", "d/dt track"]
 
 
@@ -384,7 +384,7 @@ def test_baumgarte_coefficients():
     for _ in range(3):
         diff, inv = (np.asarray(a).ravel() for a in f(rng.standard_normal(r.nx),
                                                       rng.standard_normal(r.nz), r.p_values))
-        row = r.info["alg_names"].index("d2/dt2 rod")
+        row = r.alg_names.index("d2/dt2 rod")
         assert diff[row] == pytest.approx(2.0 * inv[1] + 1.0 * inv[0], rel=1e-12, abs=1e-12)
         assert np.allclose(np.delete(diff, row), 0.0)
     # poles (-2, -3): s^2 + 5 s + 6
@@ -412,7 +412,7 @@ def test_baumgarte_pendulum_inconsistent_start_decays():
 
 def test_ggl_pendulum_matches_exact():
     r = ggl(reduce_index(ex.pendulum_planar(g=9.81, L=1.0)))
-    assert r.info["index"] == 2 and r.z_names[-1] == "mu(rod)"
+    assert r.index == 2 and r.z_names[-1] == "mu(rod)"
     x0, z0 = _values(r, {"x": 1.0, "y": 0.0, "der(y,2)": -9.81})
     xf, _ = _integrate(r, x0, z0, [0.0, 1.0], suppress_algebraic=True,
                        abstol=1e-10, reltol=1e-10)
@@ -457,7 +457,7 @@ def test_structural_analysis_failure_is_amended(maker, exact):
     """F1-F3: the Sigma-method fails (singular system Jacobian); the linear-combination
     amendment finds the true DOF 0, and the exact solution satisfies the reduced system."""
     r = reduce_index(maker())
-    assert r.info["amendments"] and "linear-combination" in r.info["amendments"][0]
+    assert r.amendments and "linear-combination" in r.amendments[0]
     assert r.nx - len(r.invariant_names) == 0
     for t in (0.3, 1.1):
         assert np.max(np.abs(_residual_at(r, exact(t), t))) < 1e-12
@@ -564,7 +564,7 @@ def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
     """C x' + x = 0 is an ODE for any C > 0 (x = x0 exp(-t/C)); a small C must not read as a
     singular system Jacobian (which would amend the model into x = 0)."""
     r = reduce_index(_rc(1e-3), eliminate="states")
-    assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
+    assert r.amendments == [] and r.info["index1_check"] == "passed"
     assert (r.x_names, r.z_names) == (["x"], ["der(x)"])
     grid = [0.0, 1e-3, 5e-3]
     xf, zf = _integrate(r, np.array([2.0]), np.array([-2.0 / 1e-3]), grid)
@@ -573,7 +573,7 @@ def test_badly_scaled_ode_keeps_its_derivative_and_exact_solution():
         assert zf[0, col] == pytest.approx(-2.0 / 1e-3 * np.exp(-t / 1e-3), rel=1e-6)
     for method, kw in (("differentiate", {"eliminate": "states"}), ("dummy_derivatives", {})):
         r12 = reduce_index(_rc(1e-12), method=method, **kw)
-        assert r12.info["amendments"] == [] and r12.info["index1_check"] == "passed"
+        assert r12.amendments == [] and r12.info["index1_check"] == "passed"
         assert r12.z_names == ["der(x)"] and r12.x_names == ["x"]
         # alg is still C x' + x: d alg / d x' = C
         f = ca.Function("j", [r12.x, r12.z, r12.p], [ca.jacobian(r12.alg, r12.z)])
@@ -589,7 +589,7 @@ def test_scaled_two_time_scale_model_is_not_amended():
     m.equation(M * m.der(x) + x, name="mech")
     m.equation(C * m.der(y) + y - x, name="elec")
     r = reduce_index(m, eliminate="states")
-    assert r.info["amendments"] == [] and r.info["index1_check"] == "passed"
+    assert r.amendments == [] and r.info["index1_check"] == "passed"
     assert r.x_names == ["x", "y"] and r.z_names == ["der(x)", "der(y)"]
     x0 = 1.0
     A = x0 / (1 - 1e-8 / 1e3)
@@ -617,7 +617,7 @@ def test_amendment_with_coupling_to_an_earlier_block():
     m.equation(m.der(y) - 2 * t * m.der(z) - z - ca.cos(t) + m.der(w), name="dynamic")
     m.equation(y - 2 * t * z - ca.sin(t), name="constraint")
     r = reduce_index(m)
-    (note,) = r.info["amendments"]
+    (note,) = r.amendments
     assert "'dynamic' was replaced" in note and "decay" in note and "d/dt constraint" in note
     assert r.nx - len(r.invariant_names) == 1
 
@@ -644,14 +644,14 @@ def test_amendment_in_a_large_model_uses_the_singular_block_only():
     m.equation(m.der(y) - 2 * t * m.der(z) - z - ca.cos(t), name="dynamic")
     m.equation(y - 2 * t * z - ca.sin(t), name="constraint")
     r = reduce_index(m)
-    (note,) = r.info["amendments"]
+    (note,) = r.amendments
     assert "+1*dynamic -1*d/dt constraint" in note
     assert r.info["index1_check"] == "passed"
     # chain as before (q' = v eliminated), the pair algebraic with its true DOF 0
     assert (r.nx, len(r.invariant_names)) == (4 * N, 2 * N)
     assert {"y", "z"} <= set(r.z_names)
     # the exact solution y = sin t, z = 0 satisfies the pair's equations
-    rows = [r.info["alg_names"].index(nm) for nm in ("dynamic", "constraint")]
+    rows = [r.alg_names.index(nm) for nm in ("dynamic", "constraint")]
     f = ca.Function("g", [r.t, r.x, r.z, r.p], [r.alg[rows]])
     for tt in (0.4, 2.0):
         x, zz = _values(r, {"y": np.sin(tt), "z": 0.0})
@@ -699,9 +699,9 @@ def test_pendulum3d_reduces_to_the_lecture_hand_form():
     assert r.info["index1_check"] == "passed"
     assert r.x_names == ["p[0]", "p[1]", "p[2]", "v[0]", "v[1]", "v[2]"]
     assert r.z_names == ["z"] and r.invariant_names == ["rod", "d/dt rod"]
-    assert r.info["alg_names"] == ["d2/dt2 rod"]
-    assert [e["variable"] for e in r.info["substituted"]] == [f"der(v)[{i}]" for i in range(3)]
-    assert [e["equation"] for e in r.info["substituted"]] == [f"newton[{i}]" for i in range(3)]
+    assert r.alg_names == ["d2/dt2 rod"]
+    assert [e["variable"] for e in r.substituted] == [f"der(v)[{i}]" for i in range(3)]
+    assert [e["equation"] for e in r.substituted] == [f"newton[{i}]" for i in range(3)]
     names = [f"der(v)[{i}]" for i in range(3)] + [f"der(p,2)[{i}]" for i in range(3)]
     f = ca.Function("g", [r.x, r.z, r.u, r.p],
                     [r.alg, r.ode, ca.vertcat(*[r.variables[n] for n in names])])
@@ -765,7 +765,7 @@ def test_state_dependent_mass_keeps_the_kkt_form():
     m.equation((2 + ca.sin(x)) * m.der(v) + x, name="newton")
     r = reduce_index(m)
     assert r.z_names == ["der(v)"]
-    assert [e["variable"] for e in r.info["substituted"]] == ["der(x)"]  # x' = v: explicit
+    assert [e["variable"] for e in r.substituted] == ["der(x)"]  # x' = v: explicit
     m2 = Model("param")
     x, v = m2.state("x"), m2.state("v")
     k = m2.parameter("k", 4.0)
@@ -792,7 +792,7 @@ def test_constant_coupled_mass_matrix_stays_algebraic_and_exact():
     m.equation(ca.vertcat(2 * a[0] + a[1] + x[0], a[0] + 2 * a[1] + x[1]), name="newton")
     r = reduce_index(m)
     assert sorted(r.z_names) == ["der(v)[0]", "der(v)[1]"]
-    assert [e["variable"] for e in r.info["substituted"]] == ["der(x)[0]", "der(x)[1]"]
+    assert [e["variable"] for e in r.substituted] == ["der(x)[0]", "der(x)[1]"]
     x0 = np.array([1.0, 0.0, 0.0, 0.0])  # x = (1, 0), v = 0
     xf, _ = _integrate(r, x0, np.zeros(2), [0.0, 2.0])
     s, d = 0.5 * np.cos(2.0 / np.sqrt(3.0)), 0.5 * np.cos(2.0)

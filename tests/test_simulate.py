@@ -386,3 +386,18 @@ def test_ggl_initialized_on_the_index1_system_and_accurate_at_tight_tolerance():
                        guess={"y": -0.8, "der(y)": 0.0})
     tr = dk.simulate(g, np.linspace(0, 10, 101), i2, rtol=1e-10, atol=1e-10)
     assert max(tr.max_invariant().values()) < 1e-8
+
+
+def test_dummy_derivative_system_always_reselects():
+    """A dummy-derivative system simulated without naming the stabilization: the selection
+    (x dummy, from horizontal) becomes singular at the bottom; the run must re-select, not
+    cross onto a wrong solution (it ended at x = 0.786 instead of the exact 0.942 at t = 5)."""
+    from daekit.examples import exact
+
+    rd = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    iv = dk.initialize(rd, 0.0, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
+    t = np.linspace(0.0, 5.0, 201)
+    ref = exact.pendulum_planar(t, np.pi / 2)
+    for stab in (None, "dummy_derivatives"):
+        tr = dk.simulate(rd, t, iv, rtol=1e-8, atol=1e-8, stabilization=stab)
+        assert np.max(np.abs(tr["x"] - ref["x"])) < 1e-4, stab

@@ -1135,7 +1135,7 @@ def _explain(a: Analysis) -> str:
         lines.append(
             "What to do: dk.reduce_index(model) repairs cancellations with constant coefficients "
             "by itself (it replaces an equation by a combination in which the leading derivatives "
-            "cancel, then reduces; see r.info['amendments']). Where the cancellation depends on "
+            "cancel, then reduces; see r.amendments). Where the cancellation depends on "
             "the variables, rewrite the model so that the structure shows the true dependencies."
         )
     return "\n".join(lines)

@@ -153,10 +153,9 @@ def _reduced_json(r) -> dict:
         "input_derivatives": list(r.input_derivatives),
         "invariant_names": list(r.invariant_names),
         "ode": dict(zip(r.x_names, text(r.ode), strict=False)),
-        "alg": dict(zip(r.info.get("alg_names") or [f"alg[{i}]" for i in range(r.alg.numel())],
-                        text(r.alg), strict=False)),
+        "alg": dict(zip(r.alg_labels, text(r.alg), strict=False)),
         "invariants": dict(zip(r.invariant_names, text(r.invariants), strict=False)),
-        "eliminated": [{k: str(v) for k, v in e.items()} for e in r.info.get("eliminated") or []],
+        "eliminated": [{k: str(v) for k, v in e.items()} for e in r.eliminated],
     }
     if r.state_selection:
         d["state_selection"] = json.loads(json.dumps(r.state_selection, default=str))

@@ -140,9 +140,9 @@ def reduced_events(r) -> list[ReducedEvent]:
     model = getattr(r, "model", None)
     if model is None or not getattr(model, "events", None):
         return []
-    cache = r.info.get("_events") if isinstance(r.info, dict) else None
-    if cache is not None and cache[0] == len(model.events) and cache[1] is r.variables:
-        return cache[2]
+    cache = r.derived("events", lambda r: {})
+    if len(model.events) in cache:
+        return cache[len(model.events)]
     olds, news = _name_map(r)
     top: dict[str, int] = {}
     for nm in r.variables:
@@ -179,8 +179,7 @@ def reduced_events(r) -> list[ReducedEvent]:
         subst = [ca.substitute(e, model.t, r.t) for e in subst]
         out.append(ReducedEvent(ev.name, subst[0], ev.direction, ev.terminal,
                                 dict(zip(ev.reset, subst[1:], strict=True)), k))
-    if isinstance(r.info, dict):
-        r.info["_events"] = (len(model.events), r.variables, out)
+    cache[len(model.events)] = out
     return out
 
 
@@ -346,8 +345,7 @@ def freeze_switches(r):
     for s, e in zip(found, sw_exprs, strict=True):
         s.expr = e
     variables = dict(zip(names, outs[3:], strict=True))
-    info = {k: v for k, v in r.info.items() if k != "_events"}
-    info["switches"] = found
+    info = {**r.info, "switches": found}
     rf = dataclasses.replace(
         r, ode=outs[0], alg=outs[1], invariants=outs[2], variables=variables,
         p=ca.vertcat(r.p, *psyms), p_names=pnames,

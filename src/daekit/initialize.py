@@ -138,10 +138,10 @@ class InitialValues:
     determined: list[str] = field(default_factory=list)
 
     def __getitem__(self, name: str):
-        from .model import expand_name
+        from .model import select_name
 
-        elems = expand_name(name, self.values, "these initial values")
-        if len(elems) == 1 and ("[" in name or not elems[0].endswith("]")):
+        elems, vector = select_name(name, self.values, "these initial values")
+        if not vector:
             return float(self.values[elems[0]])
         return np.array([self.values[e] for e in elems])
 
@@ -199,7 +199,6 @@ class _SystemCache:
 
     def __init__(self, r) -> None:
         nx, nz = r.nx, r.nz
-        self.key = _cache_key(r)
         self._refs = (r.x, r.z, r.alg, r.invariants, r.variables, r.u, r.t)  # ids stay unique
         names = list(r.variables)
         exprs = list(r.variables.values())
@@ -287,17 +286,8 @@ class _SystemCache:
         return self.zdep
 
 
-def _cache_key(r) -> tuple:
-    return (id(r.x), id(r.z), id(r.alg), id(r.invariants), id(r.variables), len(r.variables),
-            id(r.u), id(r.t))
-
-
 def _system_cache(r) -> _SystemCache:
-    c = r.__dict__.get("_initialize_cache")
-    if c is None or c.key != _cache_key(r):
-        c = _SystemCache(r)
-        r.__dict__["_initialize_cache"] = c
-    return c
+    return r.derived("initialize", _SystemCache)
 
 
 def _fmt(names_vals: list[tuple[str, float]]) -> str:
@@ -373,7 +363,7 @@ def initialize(
                          tol=tol, max_iter=max_iter)
         out.notes = notes + out.notes
         return out
-    base = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
+    base = r.origin if r.index >= 2 else None
     if base is not None:
         # an index-2 form (GGL): alg = 0 leaves its multipliers underdetermined; initialize
         # the index-1 system it came from (same x, z first) and set the GGL multipliers mu = 0
@@ -444,7 +434,7 @@ def initialize(
                 )
 
     n_alg, n_inv = int(sc.alg.numel()), int(sc.inv.numel())
-    alg_names = r.info.get("alg_names")
+    alg_names = r.alg_names
     if not alg_names or len(alg_names) != n_alg:
         alg_names = [f"alg[{i}]" for i in range(n_alg)]
     row_names = list(alg_names) + list(r.invariant_names) + fixed_names

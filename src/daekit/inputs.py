@@ -16,7 +16,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import DaekitError, ModelError
-from .model import NameNotFoundError, element_name, expand_name, parse_name
+from .model import NameNotFoundError, element_name, expand_name, fit_elements, parse_name
 from .wording import count
 
 __all__ = ["InputSignal", "InputError", "resolve_params"]
@@ -96,13 +96,13 @@ class InputSignal:
             sx = ca.vec(ca.densify(sx))
             if olds:
                 sx = ca.substitute(sx, ca.vertcat(*olds), ca.vertcat(*news))
-            if sx.numel() == 1 and len(elems) > 1:
-                sx = ca.repmat(sx, len(elems), 1)
-            if sx.numel() != len(elems):
+            col = fit_elements(sx, len(elems))
+            if col is None:
                 raise InputError(
                     f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
                     f"{sx.numel()}"
                 )
+            sx = col
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
             if others:
                 raise InputError(
@@ -308,27 +308,43 @@ class _InputCallback(ca.Callback):
 def resolve_params(r, params: Mapping | None) -> np.ndarray:
     """Parameter vector: ``r.p_values`` overridden by ``params`` (names ``"m"``, ``"L"``,
     elements ``"k[1]"``); unknown names raise :class:`InputError` listing the known ones."""
-    pv = np.asarray(r.p_values, dtype=float).ravel().copy()
+    pv = np.asarray(r.p_values, dtype=float).ravel()
     if pv.size != r.n_p:
         raise InputError(f"the system has {count(r.n_p, 'parameter')} but p_values has "
                          f"{count(pv.size, 'value')}")
+    return override_params(pv, r.p_names, params)
+
+
+def override_params(p_values, p_names: list[str], params: Mapping | None,
+                    where: str = "params") -> np.ndarray:
+    """A copy of ``p_values`` (one per name in ``p_names``) with ``params`` put in, by name
+    (``"m"``, a vector ``"k"`` with one value or one per element) or element (``"k[1]"``): the
+    one parameter override of every entry point. Unknown names raise :class:`InputError`
+    listing the known ones.
+
+    >>> override_params([1.0, 2.0, 3.0], ["m", "k[0]", "k[1]"], {"k": 5.0}).tolist()
+    [1.0, 5.0, 5.0]
+    """
+    pv = np.array(p_values, dtype=float).ravel()
     if not params:
         return pv
-
-    index = {n: i for i, n in enumerate(r.p_names)}
+    index = {n: i for i, n in enumerate(p_names)}
     for key, val in params.items():
         try:
             elems = expand_name(key, index, "the parameter list")
         except NameNotFoundError as exc:
-            raise InputError(f"params: {exc}") from None
-        arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
+            raise InputError(f"{where}: {exc}") from None
+        try:
+            arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: {key!r} must be numbers, got {val!r}") from None
         if arr.size == 1 and len(elems) > 1:
             arr = np.repeat(arr, len(elems))
         if arr.size != len(elems):
-            raise InputError(f"params: {key!r} has {count(len(elems), 'element')}, got "
+            raise InputError(f"{where}: {key!r} has {count(len(elems), 'element')}, got "
                              f"{count(arr.size, 'value')}")
         if not np.all(np.isfinite(arr)):
-            raise InputError(f"params: {key!r} is not finite ({val!r})")
+            raise InputError(f"{where}: {key!r} is not finite ({val!r})")
         for e, v in zip(elems, arr, strict=False):
             pv[index[e]] = v
     return pv

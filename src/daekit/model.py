@@ -18,6 +18,7 @@ Example
 
 from __future__ import annotations
 
+import copy
 import math
 import re
 from dataclasses import dataclass, field
@@ -29,7 +30,7 @@ from .errors import ModelError, StructuralError
 from .wording import count
 
 __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
-           "NameNotFoundError"]
+           "select_name", "fit_elements", "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
@@ -120,6 +121,36 @@ def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
     known = sorted({k.rsplit("[", 1)[0] if k.endswith("]") else k for k in keys})
     shown = ", ".join(known[:30]) + (", ..." if len(known) > 30 else "")
     raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
+
+
+def fit_elements(expr: ca.SX, n: int) -> ca.SX | None:
+    """``expr`` as a dense column of ``n`` elements (one element is repeated ``n`` times), or
+    None for any other size (each caller words its own error): the one rule by which a value
+    given for a vector name is broadcast (inputs, resets, RATTLE's inputs).
+
+    >>> fit_elements(ca.SX(2.0), 3).shape, fit_elements(ca.SX.zeros(2), 3)
+    ((3, 1), None)
+    """
+    col = ca.densify(ca.vec(expr))
+    if col.numel() == 1 and n > 1:
+        col = ca.repmat(col, n, 1)
+    return col if col.numel() == n else None
+
+
+def select_name(name: str, keys, what: str = "the solution") -> tuple[list[str], bool]:
+    """The element names meant by ``name`` and whether ``name`` means a vector: the one rule
+    every result (``Trajectory``, ``InitialValues``, ``OCPSolution``) reads values by. A vector
+    name (``"p"`` of a vector ``p``, even of size 1) gives one column per element; an element
+    (``"p[1]"``) or a scalar (``"z"``) gives one value.
+
+    >>> select_name("p", ["p[0]", "p[1]", "z"]), select_name("p[1]", ["p[0]", "p[1]", "z"])
+    ((['p[0]', 'p[1]'], True), (['p[1]'], False))
+    >>> select_name("q", ["q[0]"]), select_name("z", ["p[0]", "z"])
+    ((['q[0]'], True), (['z'], False))
+    """
+    elems = expand_name(name, keys, what)
+    scalar = len(elems) == 1 and (elems[0] == name or "[" in name or not elems[0].endswith("]"))
+    return elems, not scalar
 
 
 @dataclass
@@ -225,6 +256,22 @@ class Model:
         self._elements: dict[tuple[str, int], list] = {}  # (name, order) -> scalar symbols
         self._cache: dict[str, object] = {}
         self.events: list[Event] = []
+
+    def with_equations(self, equations: list[Equation]) -> Model:
+        """A model with ``equations`` in place of this one's, sharing its variables (and their
+        derivative symbols), parameters, invariants and events; this model is not changed.
+        The reduction's amendments build on it.
+
+        >>> import daekit as dk
+        >>> m = dk.Model("m"); x = m.state("x"); _ = m.equation(m.der(x) + x, name="decay")
+        >>> m2 = m.with_equations([dk.model.Equation("decay", m.der(x) + 2 * x)])
+        >>> m2.equation_names, str(m.equations[0].expr), str(m2.equations[0].expr)
+        (['decay'], '(der(x)+x)', '(der(x)+(2.*x))')
+        """
+        new = copy.copy(self)
+        new.equations = list(equations)
+        new._cache = {}
+        return new
 
     # ------------------------------------------------------------------ declarations
     def _declare(self, name: str, kind: str, size: int, default=None) -> ca.SX:
@@ -549,14 +596,13 @@ class Model:
             except Exception:  # noqa: BLE001 - turned into a daekit error
                 raise ModelError(f"model {self.name!r}, {where}, reset {key!r}: cannot convert "
                                  f"{type(value).__name__} to a CasADi expression") from None
-            val = ca.densify(ca.vec(val))
-            if val.numel() == 1 and len(elems) > 1:
-                val = ca.repmat(val, len(elems), 1)
-            if val.numel() != len(elems):
+            col = fit_elements(val, len(elems))
+            if col is None:
                 raise ModelError(
                     f"model {self.name!r}, {where}, reset {key!r}: {len(elems)} value(s) needed, "
                     f"got {val.numel()}"
                 )
+            val = col
             self._check_symbols(val, f"{where}, reset {key!r}")
             bad = _nonfinite_constants(val)
             if bad:

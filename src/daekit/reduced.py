@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import copy
 import pickle
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
@@ -17,6 +19,8 @@ import numpy as np
 from .wording import count
 
 __all__ = ["ReducedDAE", "Numel"]
+
+T = TypeVar("T")
 
 
 class Numel:
@@ -67,6 +71,39 @@ class ReducedDAE:
         How it was made: ``"differentiate"``, ``"dummy_derivatives"``, ``"lagrangian"``, ...
     model : daekit.Model or None
         The original model.
+    stabilization : str or None
+        The stabilization built into the equations (``"baumgarte"``, ``"ggl"``) or None.
+    alg_names : list of str
+        One name per element of ``alg``, in the model's words (``"newton[0]"``,
+        ``"d2/dt2 rod"``); :attr:`alg_labels` falls back to ``"alg[i]"`` where it is empty.
+    index : int
+        The differential index of this form: 1, or 2 for the GGL form (integrate with
+        ``suppress_algebraic``).
+    origin : ReducedDAE or None
+        The index-1 system an index-2 form was made from (GGL): consistent values are found
+        there.
+    chains : list of dict
+        The invariant chains: per constraint ``{"equation", "row", "invariants", "alg"}`` (its
+        name, its row, the indices of ``c, c', ...`` in ``invariants``, the row of ``alg``
+        holding its highest derivative), what Baumgarte and GGL stabilize.
+    offsets : dict or None
+        Pryce's offsets ``{"c": ..., "d": ...}`` (equations, unknowns) of the reduction.
+    amendments : list of str
+        Notes on structural amendments made before the reduction (empty when none).
+    eliminated, substituted : list of dict
+        Would-be states eliminated through explicit definitions, and highest derivatives
+        substituted (``{"variable", "equation", ...}``).
+    lagrangian : daekit.mechanics.LagrangianSystem or None
+        The mechanical system this was built from (``LagrangianSystem.index1()``).
+    declared_invariants : list of str
+        Names of invariants declared with ``Model.invariant`` (an ODE's quaternion norm, ...).
+    selection_jacobian : casadi.Function or None
+        Dummy derivatives: ``(t, x, z, u, p) -> `` the Jacobian whose blocks decide the state
+        selection; ``selection_blocks`` lists the blocks ``(rows, cols, candidates)``.
+    declared_selection : dict or None
+        The state-selection block of declared invariants (for dummy derivatives).
+    info : dict
+        Reporting only (checks made, notes, Baumgarte poles): nothing branches on it.
     """
 
     t: ca.SX
@@ -90,12 +127,56 @@ class ReducedDAE:
     method: str = "differentiate"
     model: object = None
     stabilization: str | None = None
+    alg_names: list[str] = field(default_factory=list)
+    index: int = 1
+    origin: ReducedDAE | None = None
+    chains: list[dict] = field(default_factory=list)
+    offsets: dict | None = None
+    amendments: list[str] = field(default_factory=list)
+    eliminated: list[dict] = field(default_factory=list)
+    substituted: list[dict] = field(default_factory=list)
+    lagrangian: object = None
+    declared_invariants: list[str] = field(default_factory=list)
+    selection_jacobian: ca.Function | None = None
+    selection_blocks: list = field(default_factory=list)
+    declared_selection: dict | None = None
     info: dict = field(default_factory=dict)
 
     nx = Numel("x", "Number of differential states.")
     nz = Numel("z", "Number of algebraic unknowns.")
     nu = Numel("u", "Number of inputs (controls and input derivatives).")
     n_p = Numel("p", "Number of parameters.")
+
+    @property
+    def alg_labels(self) -> list[str]:
+        """One label per element of ``alg``: :attr:`alg_names` when it names every element,
+        otherwise ``"alg[i]"``."""
+        if len(self.alg_names) == self.nz:
+            return list(self.alg_names)
+        return [f"alg[{i}]" for i in range(self.nz)]
+
+    def derived(self, key: str, build: Callable[[ReducedDAE], T]) -> T:
+        """``build(self)``, built once and kept on this system: the one cache of what is made
+        from a ReducedDAE (integrators, projectors, initialization functions, event lists).
+
+        The object lives as long as the system (freed with it), is never pickled, and is
+        rebuilt when the symbolic content changes (an attribute such as ``alg`` or
+        ``variables`` reassigned) or on a copy (``copy.copy``, ``dataclasses.replace``).
+
+        >>> import daekit as dk
+        >>> r = dk.reduce_index(dk.examples.pendulum_planar())
+        >>> r.derived("demo", lambda r: r.nx) is r.derived("demo", lambda r: -1)
+        True
+        """
+        # the content by identity: the objects themselves are kept, so no id can be reused
+        refs = (self.t, self.x, self.z, self.u, self.p, self.ode, self.alg, self.invariants,
+                self.variables)
+        store = self.__dict__.setdefault("_derived", {})
+        hit = store.get(key)
+        if (hit is None or hit[1] != len(self.variables)
+                or any(a is not b for a, b in zip(hit[0], refs, strict=True))):
+            hit = store[key] = (refs, len(self.variables), build(self))
+        return hit[2]
 
     def dae_dict(self) -> dict:
         """The ``{'t','x','z','p','ode','alg'}`` dict of ``casadi.integrator`` (inputs u go
@@ -116,13 +197,14 @@ class ReducedDAE:
     # copy.copy / copy.deepcopy as before (shared symbols), not through the serialization
     def __copy__(self) -> ReducedDAE:
         new = object.__new__(type(self))
-        new.__dict__.update(self.__dict__)
+        new.__dict__.update({k: v for k, v in self.__dict__.items() if k != "_derived"})
         return new
 
     def __deepcopy__(self, memo: dict) -> ReducedDAE:
         new = object.__new__(type(self))
         memo[id(self)] = new
-        new.__dict__.update(copy.deepcopy(self.__dict__, memo))
+        state = {k: v for k, v in self.__dict__.items() if k != "_derived"}
+        new.__dict__.update(copy.deepcopy(state, memo))
         return new
 
     def __getstate__(self) -> dict:

@@ -216,13 +216,8 @@ class OCP:
             r = model
         elif (hasattr(model, "equations") and hasattr(model, "variables")) or hasattr(
                 model, "index1"):  # a Model, or a LagrangianSystem (reduced as its .model())
-            try:
-                from ..reduction import reduce_index
-            except ImportError as exc:  # pragma: no cover - depends on the reduction module
-                raise OCPError(
-                    "OCP needs daekit.reduction.reduce_index to reduce the model; pass a "
-                    f"ReducedDAE instead ({exc})"
-                ) from None
+            from ..reduction import reduce_index
+
             r = reduce_index(model)
         else:
             raise OCPError(

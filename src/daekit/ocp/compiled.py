@@ -299,7 +299,7 @@ def compile_problem(ocp) -> Problem:
                       ca.substitute([man], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0],
                       bc)
     r = a.reduced
-    alg_names = list((r.info or {}).get("alg_names") or [])
+    alg_names = list(r.alg_names)
     if len(alg_names) != a.nz:
         alg_names = [f"algebraic row {i}" for i in range(a.nz)]
     return Problem(

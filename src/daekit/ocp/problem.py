@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import ModelError, OCPError
-from ..model import NameNotFoundError, element_name, expand_name, parse_name
+from ..model import NameNotFoundError, element_name, parse_name, select_name
 from ..reduced import Numel, ReducedDAE
 
 __all__ = ["Augmented", "augment"]
@@ -62,10 +62,14 @@ class Augmented:
     # ------------------------------------------------------------------ names
     def elements(self, name: str, what: str = "name") -> list[str]:
         """Element names meant by ``name`` (``"p"`` -> ``["p[0]", "p[1]"]``); OCPError if none."""
+        return self.select(name, what)[0]
+
+    def select(self, name: str, what: str = "name") -> tuple[list[str], bool]:
+        """:func:`daekit.model.select_name` on the model's names; OCPError if none."""
         if not isinstance(name, str):
             raise OCPError(f"{what}: expected a variable name (a string), got {name!r}")
         try:
-            return expand_name(name.replace(" ", ""), self.names, "the model")
+            return select_name(name.replace(" ", ""), self.names, "the model")
         except NameNotFoundError as exc:
             raise OCPError(
                 f"{what}: {exc} (elements as 'p[0]', derivatives as 'der(p)', 'der(p)[0]', "

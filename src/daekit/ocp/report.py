@@ -21,7 +21,7 @@ def _sign_notes(prob, r) -> list[str]:
     even in them (a unit quaternion), the sign imposed decides the branch: say so."""
     from ..reduction.invariants import even_declared
 
-    if not (r.info.get("declared_invariants")):
+    if not (r.declared_invariants):
         return []
     a = prob.aug
     fixed: dict[str, set[str]] = {"final": set(), "periodic": set()}
@@ -109,7 +109,7 @@ def diagnose(prob, tr, ba, kept, V, g, lbg, ubg, lbx, ubx, success, status, stat
         f"{stats['n_constraints']} constraints. Initial guess: {guess.note}."
     )
     if a.inv_names:
-        declared = set(r.info.get("declared_invariants") or [])
+        declared = set(r.declared_invariants)
         shown = [f"{nm} (declared)" if nm in declared else nm for nm in a.inv_names]
         lines.append(
             "Invariants imposed at t = 0 only (exact dynamics keep them afterwards): "

@@ -132,9 +132,9 @@ class OCPSolution:
         return np.asarray(out).T
 
     def __getitem__(self, name: str) -> np.ndarray:
-        els = self._aug.elements(name, f"solution[{name!r}]")
+        els, vector = self._aug.select(name, f"solution[{name!r}]")
         val = self._eval(ca.vertcat(*[self._aug.names[e] for e in els]))
-        return val[:, 0] if len(els) == 1 else val
+        return val if vector else val[:, 0]
 
     def simulate(self, points_per_interval: int = 10, rtol: float | None = None,
                  atol: float | None = None):

@@ -452,20 +452,20 @@ def dummy_derivatives(
         "Pryce's stages); stages above 400 equations per block (private columns by threshold "
         "pivoting, then block triangular form)",
     }
-    r.info["alg_names"] = alg_names
-    r.info["chains"] = []  # invariants are part of alg: nothing to stabilize
-    r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
-    r.info["amendments"] = amendments
+    r.alg_names = alg_names
+    r.chains = []  # invariants are part of alg: nothing to stabilize
+    r.offsets = {"c": c.copy(), "d": d.copy()}
+    r.amendments = amendments
     n_found = len(r.invariant_names)  # declared invariants (m.invariant): one dummy state each
     declared_dummy(attach_declared(r, model, check=check, seed=seed), n_found, point, seed)
-    dec = r.info.get("declared_selection")
+    dec = r.declared_selection
     if dec:  # their gradient G joins J as one more diagonal block, watched like the stages
         Gsym = dec["expression"]
         k, nc = Gsym.shape
         Jsym = ca.diagcat(Jsym, Gsym)
         blocks = blocks + [(np.arange(n, n + k), np.arange(n, n + nc), dec["cols"])]
-    r.info["selection_jacobian"] = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
-    r.info["selection_blocks"] = blocks
+    r.selection_jacobian = ca.Function("J", [r.t, r.x, r.z, r.u, r.p], [Jsym])
+    r.selection_blocks = blocks
     if check:
         check_index1(r, seed=seed)
     return r
@@ -501,9 +501,9 @@ def selection_condition(r: ReducedDAE, x, z, u=None, p=None, t: float = 0.0) -> 
         t = float(t)
     except (TypeError, ValueError):
         raise ReductionError(f"selection_condition: t must be one number, got {t!r}") from None
-    J = numerics.to_scipy(ca.DM(r.info["selection_jacobian"](t, x, z, u, p))).tocsr()
+    J = numerics.to_scipy(ca.DM(r.selection_jacobian(t, x, z, u, p))).tocsr()
     worst = 1.0
-    for R, C, cols in r.info["selection_blocks"]:
+    for R, C, cols in r.selection_blocks:
         worst = max(worst, _block_condition(_dense(J, R, C), cols))
     return worst
 

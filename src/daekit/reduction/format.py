@@ -38,11 +38,11 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
         f"{count(r.nz, 'algebraic unknown')}, {count(len(r.invariant_names), 'invariant')}"
         + (f", stabilization {r.stabilization}" if r.stabilization else "")
     ]
-    if r.info.get("index") is not None:
-        out.append(f"  (index {r.info['index']} form)")
-    for note in r.info.get("amendments", []):
+    if r.index >= 2:
+        out.append(f"  (index {r.index} form)")
+    for note in r.amendments:
         out.append(f"  note: {note}")
-    elim = r.info.get("eliminated") or []
+    elim = r.eliminated
     if elim:
         shown = [f"{e['variable']} = {_expr(e['expression'], 40)} ({e['equation']})"
                  for e in elim[:max_rows]]
@@ -68,7 +68,7 @@ def format_reduced(r: ReducedDAE, max_rows: int = 60, width: int = 160) -> str:
         "Differential equations x' = ode:",
         [f"d/dt {n} = {_expr(r.ode[i], width)}" for i, n in enumerate(r.x_names[:max_rows + 1])],
     )
-    names = r.info.get("alg_names") or [f"alg[{i}]" for i in range(r.alg.numel())]
+    names = r.alg_labels
     section(
         "Algebraic equations 0 = alg:",
         [f"0 = {n}: {_expr(r.alg[i], width)}" for i, n in enumerate(names[:max_rows + 1])],

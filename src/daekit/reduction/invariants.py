@@ -22,8 +22,8 @@ here they join the found ones:
   ``|q_j|``). That state becomes algebraic, its ODE row is dropped and ``c = 0`` takes its
   place among the algebraic equations, so the invariant holds by construction (to the
   Newton tolerance). The choice is valid where the chosen pivot stays away from zero: ``G``
-  joins Pryce's system Jacobian as one more diagonal block of ``r.info["selection_jacobian"]``
-  / ``r.info["selection_blocks"]``, so :func:`daekit.reduction.selection_condition` watches
+  joins Pryce's system Jacobian as one more diagonal block of ``r.selection_jacobian``
+  / ``r.selection_blocks``, so :func:`daekit.reduction.selection_condition` watches
   it and the dummy-derivative simulation re-selects when it degrades (a quaternion component
   passing through zero).
 
@@ -35,7 +35,7 @@ Example
 >>> _ = m.equation(m.der(x) - ca.vertcat(-x[1], x[0]), name="rotate")
 >>> _ = m.invariant(ca.dot(x, x) - 1, name="circle")
 >>> r = dk.reduce_index(m)
->>> r.invariant_names, r.info["declared_invariants"]
+>>> r.invariant_names, r.declared_invariants
 (['circle'], ['circle'])
 >>> rd = dk.reduce_index(m, method="dummy_derivatives", point={"x": [0.1, 1.0]})
 >>> rd.x_names, rd.state_selection["dummies"]
@@ -111,7 +111,7 @@ def attach_declared(r: ReducedDAE, model, check: bool = True, seed: int = 0) -> 
     """Append ``model``'s declared invariants to ``r`` (in place; returns ``r``).
 
     ``r.invariants`` / ``r.invariant_names`` get them after the found ones;
-    ``r.info["declared_invariants"]`` lists their names; for ``r.info["chains"]`` (what
+    ``r.declared_invariants`` lists their names; for ``r.chains`` (what
     Baumgarte stabilizes) each becomes a chain of length one marked ``"declared"``. With
     ``check`` the claim is verified (:func:`check_declared`).
 
@@ -121,7 +121,7 @@ def attach_declared(r: ReducedDAE, model, check: bool = True, seed: int = 0) -> 
     >>> _ = m.equation(m.der(w) + 2 * w, name="square")   # w = x^2 decays twice as fast
     >>> _ = m.invariant(w - x**2, name="lifted")
     >>> r = dk.reduce_index(m)
-    >>> r.invariant_names, r.info["chains"][-1]["declared"]
+    >>> r.invariant_names, r.chains[-1]["declared"]
     (['lifted'], True)
     """
     names = declared_names(model)
@@ -131,12 +131,12 @@ def attach_declared(r: ReducedDAE, model, check: bool = True, seed: int = 0) -> 
     n_found = len(r.invariant_names)
     r.invariants = ca.vertcat(_col(r.invariants), c)
     r.invariant_names = list(r.invariant_names) + names
-    r.info["declared_invariants"] = list(names)
+    r.declared_invariants = list(names)
     if r.method != "dummy_derivatives":
-        chains = list(r.info.get("chains") or [])
+        chains = list(r.chains)
         chains += [{"equation": nm, "row": None, "invariants": [n_found + k], "alg": None,
                     "declared": True} for k, nm in enumerate(names)]
-        r.info["chains"] = chains
+        r.chains = chains
     if check:
         check_declared(r, n_found, seed=seed, model_name=getattr(model, "name", "model"))
     return r
@@ -329,8 +329,8 @@ def baumgarte_declared(r: ReducedDAE, out: ReducedDAE, chains: list[dict],
     out.alg = ca.vertcat(_col(out.alg), alg_new)
     out.z = ca.vertcat(out.z, mu)
     out.z_names = list(out.z_names) + [f"mu({nm})" for nm in names]
-    alg_names = list(out.info.get("alg_names") or [f"alg[{i}]" for i in range(r.nz)])
-    out.info["alg_names"] = alg_names + [f"d/dt {nm} + {float(ai):g} {nm}"
+    alg_names = list(out.alg_labels)
+    out.alg_names = alg_names + [f"d/dt {nm} + {float(ai):g} {nm}"
                                          for nm, ai in zip(names, coefficients, strict=True)]
 
 
@@ -372,7 +372,7 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
     column pivoting picks one state per invariant (the largest pivot); those states become
     algebraic unknowns, their ODE rows are dropped, and the invariants join the algebraic
     equations. ``r.state_selection`` records the choice as a stage ``"declared"``;
-    ``r.info["declared_selection"]`` holds ``G`` (``"expression"``, in ``r``'s symbols), the
+    ``r.declared_selection`` holds ``G`` (``"expression"``, in ``r``'s symbols), the
     chosen columns and the candidate names.
     """
     names = list(r.invariant_names[n_found:])
@@ -413,7 +413,7 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
     dummies = [cand[i] for i in cols]
     r.x_names = [cand[i] for i in keep]
     r.z_names = list(r.z_names) + dummies
-    r.info["alg_names"] = list(r.info.get("alg_names") or []) + names
+    r.alg_names = list(r.alg_names) + names
     sel = r.state_selection if r.state_selection is not None else {
         "dummies": [], "stages": [], "condition": 1.0}
     sel["states"] = list(r.x_names)
@@ -423,7 +423,7 @@ def declared_dummy(r: ReducedDAE, n_found: int, point: Mapping | None = None,
         "condition": cond, "blocks": 1}]
     sel["condition"] = max(float(sel.get("condition", 1.0)), cond)
     r.state_selection = sel
-    r.info["declared_selection"] = {"expression": Gsym, "cols": cols, "candidates": cand}
+    r.declared_selection = {"expression": Gsym, "cols": cols, "candidates": cand}
     return r
 
 
@@ -437,7 +437,7 @@ def even_declared(r: ReducedDAE, seed: int = 0) -> dict[str, list[str]]:
     >>> even_declared(dk.reduce_index(dk.examples.rigid_body()))
     {'unit': ['q[0]', 'q[1]', 'q[2]', 'q[3]']}
     """
-    names = r.info.get("declared_invariants") or []
+    names = r.declared_invariants
     if not names:
         return {}
     n0 = len(r.invariant_names) - len(names)

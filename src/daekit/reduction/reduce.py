@@ -122,8 +122,8 @@ def reduce_index(
         ``x = (p, v)``, ``z = (z)``. A coefficient that depends on the state (a mass matrix
         ``M(q)``) keeps the KKT form (``der(v)`` algebraic). ``"states"``: only the would-be
         states (``z = (der(v), z)`` for the pendulum). ``False``: Pryce's scheme as it is
-        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.info["eliminated"]`` lists the
-        would-be states eliminated, ``r.info["substituted"]`` the highest derivatives
+        (every ``x_j^(k)``, ``k < d_j``, a state). ``r.eliminated`` lists the
+        would-be states eliminated, ``r.substituted`` the highest derivatives
         substituted, each by which equation, as what; ``r.variables`` still gives every name
         (``"der(v)[0]"`` as an expression of ``p``, ``z``, ...).
 
@@ -184,7 +184,7 @@ def reduce_index(
         if amendments:
             check_amendments(model, r, seed=seed)
     except ReductionError:
-        if eliminate is True and r.info.get("substituted"):
+        if eliminate is True and r.substituted:
             # name every equation of the singular combination, including those whose
             # highest derivatives were substituted: the message of the KKT form
             reduce_index(model, seed=seed, eliminate="states")
@@ -219,10 +219,10 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
         r.ode, r.alg, r.invariants = el.substitute([r.ode, r.alg, r.invariants])
         for nm, e in zip(pair_names(ex, el.pairs), ca.vertsplit(el.defs), strict=True):
             r.variables[nm] = e
-    r.info["alg_names"] = alg_names
-    r.info["chains"] = chains
-    r.info["offsets"] = {"c": c.copy(), "d": d.copy()}
-    r.info["amendments"] = amendments
+    r.alg_names = alg_names
+    r.chains = chains
+    r.offsets = {"c": c.copy(), "d": d.copy()}
+    r.amendments = amendments
     # "eliminated": would-be states (their equations are no invariants: what
     # analyze().definitions lists); "substituted": highest derivatives that would have been
     # algebraic unknowns (their equations of offset 0 were never invariants)
@@ -231,8 +231,8 @@ def _differentiate(ex: Expansion, amendments: list[str], eliminate) -> ReducedDA
          int(c[i]) == 0)
         for i, nm in zip(el.equations, pair_names(ex, zip(el.unknowns, el.orders)), strict=True)
     ]
-    r.info["eliminated"] = [e for e, top in done if not top]
-    r.info["substituted"] = [e for e, top in done if top]
+    r.eliminated = [e for e, top in done if not top]
+    r.substituted = [e for e, top in done if top]
     return r
 
 
@@ -250,7 +250,7 @@ def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
 
     names = model.equation_names
     replaced = []
-    for note in r.info.get("amendments", []):
+    for note in r.amendments:
         if "equation " in note and " was replaced" in note:
             nm = note.split("equation ", 1)[1].split(" was replaced")[0].strip("'\"")
             if nm in names:
@@ -263,7 +263,7 @@ def check_amendments(model: Model, r: ReducedDAE, seed: int = 0) -> None:
     except DaekitError as exc:
         r.info["amendment_check"] = f"not checked ({exc})"
         return
-    c, d = r.info["offsets"]["c"], r.info["offsets"]["d"]
+    c, d = r.offsets["c"], r.offsets["d"]
     dof = int(d[cols].sum() - c[rows].sum())
     r.info["amendment_check"] = (f"amended system: {dof} DOF, derivative array: {truth} DOF "
                                  f"(in the {len(rows)} equations coupled to the replaced ones)")
@@ -418,8 +418,6 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
 
     Returns the expansion and a list of plain-language notes on the replaced equations.
     """
-    import copy as _copy
-
     from ..model import Equation
     from .differentiate import time_derivative
 
@@ -464,9 +462,7 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
             f"{names[l]!r} was replaced by the combination {' '.join(terms)}, in which the "
             "leading derivatives cancel (linear-combination method)"
         )
-        work = _copy.copy(work)
-        work.equations = new_eqs
-        work._cache = {}
+        work = work.with_equations(new_eqs)
         ex = expand(work, validate=False)
         ex.model = model
     return ex, notes
@@ -644,7 +640,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     if not finite:
         r.info["index1_check"] = "inconclusive (no finite Jacobian at random points)"
         return
-    names = r.info.get("alg_names") or [f"alg[{i}]" for i in range(r.nz)]
+    names = r.alg_labels
     eqs = [names[i] for i in bad]
     shown = ", ".join(repr(e) for e in eqs[:12]) + (" ..." if len(eqs) > 12 else "")
     model = getattr(r.model, "name", "model")

@@ -155,10 +155,10 @@ def baumgarte(
             "equations, so nothing drifts and there is nothing to stabilize; use "
             "reduce_index(model) (method='differentiate') for Baumgarte stabilization"
         )
-    chains = r.info.get("chains")
+    chains = r.chains
     if chains is None:
         raise ReductionError(
-            "baumgarte: this ReducedDAE carries no invariant chains (r.info['chains']); make it "
+            "baumgarte: this ReducedDAE carries no invariant chains (r.chains); make it "
             "with daekit.reduce_index(model)"
         )
     _chain_coefficients(poles, 1)  # validate the poles even without chains
@@ -210,7 +210,7 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     the positions ``q`` (the states ``c`` depends on) becomes ``q' = v + G(q)^T mu`` with a new
     algebraic variable ``mu`` per constraint (named ``"mu(rod)"``). Both constraints then hold
     along numerical solutions; ``mu`` is zero along exact ones. Other chains are kept as they
-    are (see ``r.info["chains"]``).
+    are (see ``r.chains``).
 
     The result is index 2 in Hessenberg form: integrate it with ``suppress_algebraic`` (IDAS)
     from consistent initial values.
@@ -218,11 +218,11 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     >>> import daekit as dk
     >>> from daekit.reduction import reduce_index
     >>> rg = ggl(reduce_index(dk.examples.pendulum_planar()))
-    >>> rg.z_names[-1], rg.info["index"]
+    >>> rg.z_names[-1], rg.index
     ('mu(rod)', 2)
     """
     r = as_reduced(r, "ggl")  # a Model or LagrangianSystem: reduced (the one rule)
-    chains = r.info.get("chains") or []
+    chains = r.chains
     pos = [ch for ch in chains if len(ch["invariants"]) == 2]
     if r.method not in ("differentiate", "lagrangian") or not pos:
         raise ReductionError(
@@ -248,14 +248,14 @@ def ggl(r: ReducedDAE) -> ReducedDAE:
     out.z_names = list(r.z_names) + [f"mu({ch['equation']})" for ch in pos]
     out.stabilization = "ggl"
     out.info = dict(r.info)
-    names = list(r.info.get("alg_names", [f"alg[{i}]" for i in range(r.nz)]))
+    names = list(r.alg_labels)
     for ch in pos:
         names[ch["alg"]] = "d/dt " + ch["equation"]
-    out.info["alg_names"] = names + [ch["equation"] for ch in pos]
-    out.info["chains"] = [ch for ch in chains if len(ch["invariants"]) != 2]
-    out.info["index"] = 2
+    out.alg_names = names + [ch["equation"] for ch in pos]
+    out.chains = [ch for ch in chains if len(ch["invariants"]) != 2]
+    out.index = 2
     out.info["ggl_positions"] = [r.x_names[i] for i in q_idx]
     # the index-1 system it came from: consistent initial values are found there (with the
     # hidden constraint c'' = 0 that fixes the multipliers z), and mu = 0
-    out.info["index1"] = r
+    out.origin = r
     return out

@@ -208,7 +208,8 @@ def simulate(
         projects the recorded points (``project_output``);
         ``"dummy_derivatives"`` needs ``r`` from ``reduce_index(model,
         method="dummy_derivatives")`` and re-selects the states when the selection's pivot
-        degrades (``stats["selection_switches"]``).
+        degrades (``stats["selection_switches"]``); such an ``r`` is always simulated this
+        way (None means it too: a fixed selection is valid only while its pivot is regular).
     rtol, atol : float
         IDAS tolerances (default 1e-8 each). RATTLE takes fixed steps ``dt`` and no
         tolerances: given with ``method="rattle"`` they warn and are not used.
@@ -318,6 +319,10 @@ def simulate(
             return traj
     options = {k: v for k, v in options.items() if k not in event_keys}
     stabilization = _stabilization(stabilization)
+    if stabilization is None and getattr(r, "method", "") == "dummy_derivatives":
+        # a dummy-derivative selection holds only while its pivot is regular: without the
+        # re-selection monitor the run would cross the singularity onto a wrong solution
+        stabilization = "dummy_derivatives"
     for name, tol in (("rtol", rtol), ("atol", atol)):
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
             raise InputError(f"simulate: {name} must be a positive number, got {tol!r}")
@@ -342,12 +347,12 @@ def simulate(
         from ..reduction import baumgarte
 
         # made once per system and poles, kept on it (so is its integrator)
-        cache = r.__dict__.setdefault("_daekit_baumgarte", {})
+        cache = r.derived("simulate.baumgarte", lambda r: {})
         key = repr(poles)
         if key not in cache:
             cache[key] = baumgarte(r, poles=poles)
         r_int = cache[key]
-    if r_int.info.get("index", 1) >= 2 and "suppress_algebraic" not in options:
+    if r_int.index >= 2 and "suppress_algebraic" not in options:
         # an index-2 form (GGL): its algebraic unknowns are not controlled by the BDF error
         # test (the index-2 variables' errors do not converge at the order of the method),
         # else IDAS takes tiny steps (Brenan, Campbell, Petzold 1996, sec. 5.4)
@@ -371,9 +376,7 @@ def simulate(
 
         traj = simulate_dummy(r_int, tg, x0, z0, inputs, pv, rtol, atol, options, progress)
     elif stabilization == "projection":
-        proj = r_int.__dict__.get("_daekit_projector")  # built once per system, kept on it
-        if proj is None:
-            proj = r_int.__dict__["_daekit_projector"] = Projector(r_int)
+        proj = r_int.derived("simulate.projector", Projector)  # built once per system
         proj.stats = {"projections": 0, "projection_iterations": 0}
         proj.set_tolerances(rtol, atol)
         tol = default_drift_tol(rtol, atol) if drift_tol is None else float(drift_tol)

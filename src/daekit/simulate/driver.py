@@ -327,7 +327,7 @@ class Driver:
         per = System.first_budget * (4 if not self.monitors and self.checks <= 16 else 1)
         budget = {} if user_budget else {"max_num_steps": per}
         tries: list[tuple[dict, bool]] = []
-        if first and system.r.info.get("index", 1) < 2:
+        if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
         tries.append((budget, True))
         if "suppress_algebraic" not in system.options:

@@ -43,13 +43,13 @@ def conditions(rr, T, X, Z, U, p) -> np.ndarray:
     n = T.size
     if n == 0:
         return np.zeros(0)
-    cache = rr.__dict__.setdefault("_daekit_condition", {})
+    cache = rr.derived("simulate.selection_condition", lambda r: {})
     if "fun" not in cache:
         syms = [ca.SX.sym(k, v.numel()) for k, v in (("t", rr.t), ("x", rr.x), ("z", rr.z),
                                                     ("u", rr.u), ("p", rr.p))]
-        J = rr.info["selection_jacobian"](*syms)
+        J = rr.selection_jacobian(*syms)
         blocks = [(ca.densify(J[list(map(int, R)), list(map(int, C))]), np.asarray(cols, int))
-                  for R, C, cols in rr.info["selection_blocks"] if len(R)]
+                  for R, C, cols in rr.selection_blocks if len(R)]
         cache["fun"] = ca.Function("blocks", syms, [b for b, _ in blocks] or [ca.SX(0, 1)])
         cache["cols"] = [c for _, c in blocks]
         cache["shapes"] = [b.shape for b, _ in blocks]

@@ -99,15 +99,53 @@ def has_events(r) -> bool:
 
     if getattr(getattr(r, "model", None), "events", None):
         return True
-    key = "_has_switches"
-    ident = (id(r.ode), id(r.alg), id(r.invariants))
-    hit = r.info.get(key)
-    if hit is None or hit[0] != ident:  # (a copy of info on another system is not trusted)
+    def scan(r) -> bool:
         found = switches(r, limit=SCAN_LIMIT)
-        r.info[key] = hit = (ident, bool(found))
         if found is None:
             r.info["switch_scan"] = f"not scanned (more than {SCAN_LIMIT} instructions)"
-    return hit[1]
+        return bool(found)
+
+    return r.derived("simulate.has_switches", scan)
+
+
+def first_crossing(G: np.ndarray, ref: list, band, dirs, *, rows: int | None = None,
+                   first_row_arms: bool = True) -> tuple[int | None, list[int], list]:
+    """The first row of ``G`` (rows: times; columns: monitors) at which a monitor changes sign
+    in its direction: the one sign-change scan of the driver, the segment path and RATTLE.
+
+    ``ref[i]`` is monitor ``i``'s sign before the first row, or None while it is disarmed (it
+    arms once ``|g| > band[i]``: a monitor that has just fired is not re-fired by its own
+    zero); ``dirs[i]`` is ``+1`` (rising only), ``-1`` (falling only) or ``0`` (both); a change
+    against the direction only updates the sign. With ``first_row_arms`` the first row only
+    sets signs (it is the last row already accepted). Returns ``(j, crossed, ref)``: the row,
+    the monitors that crossed between rows ``j - 1`` and ``j`` and the signs before row ``j``;
+    ``(None, [], ref)`` with the signs after all rows when nothing crossed.
+
+    >>> G = np.array([[1.0, -1.0], [0.5, 1.0], [-0.5, 2.0]])
+    >>> first_crossing(G, [None, None], [0.0, 0.0], [0, -1])
+    (2, [0], [1.0, 1.0])
+    """
+    ref = list(ref)
+    for j in range(G.shape[0] if rows is None else rows):
+        crossed = []
+        new = list(ref)
+        for i in range(len(ref)):
+            g = G[j, i]
+            if ref[i] is None:
+                if abs(g) > band[i]:
+                    new[i] = 1.0 if g > 0 else -1.0
+                continue
+            s = 1.0 if g > 0 else (-1.0 if g < 0 else 0.0)
+            if s != ref[i] and (j > 0 or not first_row_arms):
+                rising = ref[i] < 0
+                if dirs[i] == 0 or (dirs[i] > 0) == rising:
+                    crossed.append(i)
+            if s != 0:
+                new[i] = s
+        if crossed:
+            return j, crossed, ref
+        ref = new
+    return None, [], ref
 
 
 class _Monitors:
@@ -218,7 +256,7 @@ def with_branch_states(rf, n_branch: int):
         p=rf.p[:npo], p_names=list(rf.p_names[:npo]),
         p_values=np.asarray(rf.p_values, float)[:npo],
         x_names=list(rf.x_names) + list(rf.p_names[npo:]),
-        info={k: v for k, v in rf.info.items() if not k.startswith("_")},
+        info=dict(rf.info),
     )
 
 
@@ -282,29 +320,8 @@ class EventMonitor(Monitor):
 
     def _scan(self, G, state, upto=None):
         """(row j, crossed list, refs after rows < j) of the first crossing, or (None, [], refs)."""
-        ref, band = list(state["ref"]), state["band"]
-        dirs = self.mon.dirs
-        rows = G.shape[0] if upto is None else upto + 1
-        for j in range(rows):
-            crossed = []
-            new = list(ref)
-            for i in range(self.n):
-                g = G[j, i]
-                if ref[i] is None:
-                    if abs(g) > band[i]:
-                        new[i] = 1.0 if g > 0 else -1.0
-                    continue
-                s_ = 1.0 if g > 0 else (-1.0 if g < 0 else 0.0)
-                if s_ != ref[i] and j > 0:
-                    rising = ref[i] < 0
-                    if dirs[i] == 0 or (dirs[i] > 0) == rising:
-                        crossed.append(i)
-                if s_ != 0:
-                    new[i] = s_
-            if crossed:
-                return j, crossed, ref
-            ref = new
-        return None, [], ref
+        return first_crossing(G, state["ref"], state["band"], self.mon.dirs,
+                              rows=None if upto is None else upto + 1)
 
     def check(self, seg, state):
         if self.n == 0:
@@ -564,7 +581,7 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
     else:
         r_work, seg_stab = r, None
     dummy = stabilization == "dummy_derivatives"
-    index2 = r_work.info.get("index", 1) >= 2
+    index2 = r_work.index >= 2
     rf, found = (r_work, []) if dummy else freeze_switches(r_work)
     mon = _Monitors(r_work, rf, found, r_work.n_p)
     n_mon = len(mon.names)
@@ -687,27 +704,8 @@ def simulate_events(r, t, init, inputs=None, params=None, stabilization=None, rt
             seg, failure = exc.trajectory, exc
         add_stats(seg)
         G = mon.values(seg, pv_of(branches))
-        hit = None  # (j, monitors that crossed between rows j-1 and j)
-        for j in range(seg.t.size):
-            crossed = []
-            for i in range(n_mon):
-                g = G[j, i]
-                if ref[i] is None:
-                    if abs(g) > band[i]:
-                        ref[i] = 1.0 if g > 0 else -1.0
-                    continue
-                s = 1.0 if g > 0 else (-1.0 if g < 0 else 0.0)
-                if s != ref[i] and j > 0:
-                    rising = ref[i] < 0
-                    if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
-                        crossed.append(i)
-                    if s != 0:
-                        ref[i] = s
-                elif s != 0:
-                    ref[i] = s
-            if crossed:
-                hit = (j, crossed)
-                break
+        j_hit, crossed_hit, ref = first_crossing(G, ref, band, mon.dirs)
+        hit = None if j_hit is None else (j_hit, crossed_hit)  # rows j-1 -> j
         if hit is None:
             last = seg.t.size - 1
             for j in range(seg.t.size):
@@ -902,7 +900,7 @@ def _restore(r, t, x, z, u, p, targets):
     """:func:`restore` on ``r``; an index-2 (GGL) system through the index-1 system it came from
     (its algebraic unknowns are not determined by ``alg`` at fixed states), the GGL multipliers
     then zero."""
-    r1 = r.info.get("index1") if r.info.get("index", 1) >= 2 else None
+    r1 = r.origin if r.index >= 2 else None
     if r1 is None or list(r1.x_names) != list(r.x_names):
         return restore(r, t, x, z, u, p, targets)
     zmap = dict(zip(r.z_names, z, strict=True))
@@ -1067,27 +1065,9 @@ def simulate_rattle_events(r, t, init, params=None, inputs=None, dt: float | Non
             Xc = run_chunk(X, h, K)
             total_steps += K
             Gc = gvals_rows(Xc)
-            hit = None
-            for jrow in range(K):
-                g1 = Gc[jrow]
-                crossed = []
-                new_ref = list(ref)
-                for i in range(nev):
-                    if ref[i] is None:
-                        if abs(g1[i]) > band[i]:
-                            new_ref[i] = 1.0 if g1[i] > 0 else -1.0
-                        continue
-                    s_ = np.sign(g1[i])
-                    if s_ != ref[i]:
-                        rising = ref[i] < 0
-                        if mon.dirs[i] == 0 or (mon.dirs[i] > 0) == rising:
-                            crossed.append(i)
-                        elif s_ != 0:
-                            new_ref[i] = s_
-                if crossed:
-                    hit = (jrow, crossed)
-                    break
-                ref = new_ref
+            j_hit, crossed_hit, ref = first_crossing(Gc, ref, band, mon.dirs, rows=K,
+                                                     first_row_arms=False)
+            hit = None if j_hit is None else (j_hit, crossed_hit)
             if hit is None:
                 X = Xc[-1].copy()
                 left -= K

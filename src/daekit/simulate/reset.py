@@ -71,7 +71,7 @@ def _target_names(r, k: int) -> list[str]:
 
 def _mass_metric(r, names: list[str], values: dict[str, float], p) -> np.ndarray | None:
     """Cholesky-like factor ``R`` with ``R^T R = M`` on the velocity names, or None."""
-    ls = r.info.get("lagrangian") if isinstance(r.info, dict) else None
+    ls = getattr(r, "lagrangian", None)
     if ls is None and r.model is not None:
         ls = getattr(r.model, "mechanics", None)
     if ls is None:

@@ -10,7 +10,7 @@ tolerances and the state's derivative, not on the output grid (see :meth:`System
 What SUNDIALS prints is captured (:func:`daekit._cio.c_output`) and never reaches the console;
 a failure raises :class:`IntegrationFailure` with the time SUNDIALS reported.
 
-Systems are cached *on the ReducedDAE object itself* (attribute ``_daekit_systems``), keyed by
+Systems are cached *on the ReducedDAE object itself* (:meth:`ReducedDAE.derived`), keyed by
 its equations, inputs and settings: the cache lives and dies with the system it belongs to.
 
 Example
@@ -321,7 +321,7 @@ def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) 
         key = (_fingerprint(r), u_key, float(rtol), float(atol), repr(sorted(options.items())))
     except Exception:  # noqa: BLE001 - unprintable option: no caching
         return System(r, sig, rtol, atol, options)
-    cache = r.__dict__.setdefault("_daekit_systems", {})
+    cache = r.derived("simulate.systems", lambda r: {})
     hit = cache.get(key)
     if hit is not None:
         return hit
@@ -455,7 +455,7 @@ class System:
         """The first step: IDAS's own rule ``min(1e-3 span, 0.5 / ||xdot0||_wrms)`` with ``span``
         the whole simulated time span, never the first output interval (see issue 8 item 6);
         ``5e-7 span`` for index-2 systems (GGL)."""
-        if self.r.info.get("index", 1) >= 2:
+        if self.r.index >= 2:
             # index 2 (GGL): the Newton matrix has condition ~ 1/h, and tiny first steps fail
             # (measured: the pendulum's GGL form at rtol 1e-10): a moderate step, 5e-7 of the
             # span (never of the output spacing: with one output interval it used to fail)

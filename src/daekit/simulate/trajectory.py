@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterable, Mapping, MutableMapping
 import numpy as np
 
 from ..errors import ModelError
-from ..model import NameNotFoundError, expand_name
+from ..model import NameNotFoundError, expand_name, select_name
 from ..wording import count
 from .storage import read_trajectory, save_trajectory
 
@@ -209,8 +209,8 @@ class Trajectory:
     def __getitem__(self, name: str) -> np.ndarray:
         if name == "t":
             return self.t
-        elems = expand_name(name, self.values, "this trajectory")
-        if len(elems) == 1 and (elems[0] == name or "[" in name or not elems[0].endswith("]")):
+        elems, vector = select_name(name, self.values, "this trajectory")
+        if not vector:
             return self.values[elems[0]]
         return np.column_stack([self.values[e] for e in elems])
 

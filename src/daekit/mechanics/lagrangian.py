@@ -41,10 +41,10 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import ModelError
-from .model import Model, element_name
-from .reduced import ReducedDAE
-from .wording import count
+from ..errors import ModelError
+from ..model import Model, element_name
+from ..reduced import ReducedDAE
+from ..wording import count
 
 __all__ = ["LagrangianSystem", "lagrangian"]
 
@@ -153,8 +153,8 @@ class LagrangianSystem:
       ``[c; G q']`` named ``"rod"``/``"d/dt rod"`` (or ``"c[0]"``/``"d/dt c[0]"``).
       ``q''`` stays an algebraic unknown (rather than being eliminated by solving the linear
       system symbolically), which keeps the expressions sparse; ``d alg / d(q'', z)`` is the
-      KKT matrix ``[M G^T; G 0]``. ``r.info["lagrangian"]`` is this object;
-      ``r.info["chains"]`` and ``r.info["alg_names"]`` are filled as by
+      KKT matrix ``[M G^T; G 0]``. ``r.lagrangian`` is this object;
+      ``r.chains`` and ``r.alg_names`` are filled as by
       :func:`daekit.reduce_index`, so :func:`daekit.baumgarte`, :func:`daekit.ggl` and
       ``daekit.simulate(..., stabilization="baumgarte")`` work on the result.
     - For RATTLE and other structure-exploiting integrators, CasADi Functions (the symbolic
@@ -514,8 +514,7 @@ class LagrangianSystem:
             state_selection=None,
             method="lagrangian",
             model=mdl,
-            info={"lagrangian": self, "mass_matrix": self.mass_matrix, "chains": chains,
-                  "alg_names": alg_names, "amendments": []},
+            lagrangian=self, chains=chains, alg_names=alg_names,
         )
 
     # ------------------------------------------------------------------ functions

@@ -97,8 +97,9 @@ def compact(rr):
     same solution with fewer unknowns for IDAS (on the 3D pendulum at rtol 1e-8: 1838 steps
     instead of 3359: fewer algebraic unknowns carrying their Newton errors into IDAS's error
     test). Every name stays readable (``variables`` substituted). Returns ``rr`` itself when
-    nothing is eliminated; else a new ReducedDAE whose ``_daekit_full`` attribute is
-    ``(rr, zfull)``, ``zfull(t, x, z, u, p)`` the full algebraic vector of ``rr``.
+    nothing is eliminated (or it has more than ``COMPACT_MAX_NZ`` algebraic unknowns); else a
+    new ReducedDAE, built once per system; :func:`full_values` and :func:`compact_values`
+    carry values between the two.
 
     >>> import daekit as dk
     >>> rd = dk.reduce_index(dk.examples.pendulum3d(), method="dummy_derivatives",
@@ -106,9 +107,10 @@ def compact(rr):
     >>> rd.nz, compact(rd).nz
     (12, 3)
     """
-    hit = rr.__dict__.get("_daekit_compact")
-    if hit is not None:
-        return hit
+    return rr.derived("simulate.compact", _build_compact)
+
+
+def _build_compact(rr):
     nz = rr.nz
     if nz == 0 or nz > COMPACT_MAX_NZ:
         return rr
@@ -116,7 +118,7 @@ def compact(rr):
     zl = [rr.z[i] for i in range(nz)]
     names = list(rr.z_names)
     alg = [rr.alg[i] for i in range(rr.alg.numel())]
-    alg_names = list(rr.info.get("alg_names") or [f"alg[{i}]" for i in range(len(alg))])
+    alg_names = list(rr.alg_labels)
     others = ca.vertcat(rr.t, rr.x, rr.u)
     subs: list[tuple[ca.SX, ca.SX]] = []
     changed = True
@@ -142,7 +144,6 @@ def compact(rr):
             if changed:
                 break
     if not subs:
-        rr.__dict__["_daekit_compact"] = rr
         return rr
     old = ca.vertcat(*[s for s, _ in subs])
     new = ca.vertcat(*[e for _, e in subs])
@@ -152,26 +153,30 @@ def compact(rr):
         return ca.substitute(x, old, new) if x.numel() else x
 
     zc = ca.vertcat(*zl) if zl else ca.SX(0, 1)
+    zfull = ca.Function("zfull", [rr.t, rr.x, zc, rr.u, rr.p], [sub(rr.z)])
+    sel = rr.selection_jacobian
+    if sel is not None:  # the pivot measure of the full system, at zfull
+        sel = ca.Function("J", [rr.t, rr.x, zc, rr.u, rr.p],
+                          [sel(rr.t, rr.x, zfull(rr.t, rr.x, zc, rr.u, rr.p), rr.u, rr.p)])
     rc = dataclasses.replace(
         rr, z=zc, z_names=names, ode=sub(rr.ode), alg=ca.vertcat(*alg) if alg else ca.SX(0, 1),
         invariants=sub(rr.invariants), variables={k: sub(v) for k, v in rr.variables.items()},
-        info={**rr.info, "alg_names": alg_names,
-              "compacted": [rr.z_names[i] for i in range(nz) if rr.z_names[i] not in names]})
-    zfull = ca.Function("zfull", [rr.t, rr.x, zc, rr.u, rr.p], [sub(rr.z)])
-    if "selection_jacobian" in rr.info:  # the pivot measure of the full system, at zfull
-        Jf = rr.info["selection_jacobian"]
-        rc.info["selection_jacobian"] = ca.Function(
-            "J", [rr.t, rr.x, zc, rr.u, rr.p],
-            [Jf(rr.t, rr.x, zfull(rr.t, rr.x, zc, rr.u, rr.p), rr.u, rr.p)])
-    rc.__dict__["_daekit_full"] = (rr, zfull, np.array([rr.z_names.index(n) for n in names],
-                                                       dtype=int))
-    rr.__dict__["_daekit_compact"] = rc
+        alg_names=alg_names, selection_jacobian=sel, info=dict(rr.info))
+    idx = np.array([rr.z_names.index(n) for n in names], dtype=int)
+    rc.derived("simulate.full_system", lambda _: (rr, zfull, idx))
     return rc
+
+
+def _full_entry(rc):
+    """``(full system, zfull, indices)`` of a compact system, or None."""
+    store = rc.__dict__.get("_derived", {})
+    hit = store.get("simulate.full_system")
+    return None if hit is None else rc.derived("simulate.full_system", lambda _: None)
 
 
 def full_values(rc, t, x, z, u, p):
     """``(rr, x, z_full)``: the values of a :func:`compact` system in its full system."""
-    entry = rc.__dict__.get("_daekit_full")
+    entry = _full_entry(rc)
     if entry is None:
         return rc, np.asarray(x, float), np.asarray(z, float)
     rr, zfull, _ = entry
@@ -179,9 +184,15 @@ def full_values(rc, t, x, z, u, p):
     return rr, np.asarray(x, float), zf
 
 
+def full_system(rc):
+    """The full dummy-derivative system of a :func:`compact` one (itself otherwise)."""
+    entry = _full_entry(rc)
+    return rc if entry is None else entry[0]
+
+
 def compact_values(rc, z_full) -> np.ndarray:
     """The algebraic values of the compact system ``rc`` from those of its full system."""
-    entry = rc.__dict__.get("_daekit_full")
+    entry = _full_entry(rc)
     z_full = np.asarray(z_full, float).ravel()
     return z_full if entry is None else z_full[entry[2]]
 
@@ -272,7 +283,7 @@ class PivotMonitor(Monitor):
         for key, sy in self.known().items():
             if key == tuple(cur.x_names):
                 continue
-            full = sy.r.__dict__.get("_daekit_full", (sy.r,))[0]
+            full = full_system(sy.r)
             xa, za = map_values(cur, full, x, z)
             za = compact_values(sy.r, za)
             c = float(conditions(sy.r, [t], xa[None, :], za[None, :], np.asarray(u)[None, :],

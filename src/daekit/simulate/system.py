@@ -300,12 +300,12 @@ def signal_for(r, inputs: Mapping | None) -> InputSignal:
     """
     if inputs:
         return InputSignal(r, inputs)
-    sig = r.__dict__.get("_daekit_signal")
-    if sig is None or sig.r is not r:  # (a copy of r shares its entries: not its signal)
+    def build(r) -> InputSignal:
         sig = InputSignal(r, None)
         sig.default = True  # no inputs given: the key of system_for needs no serialization
-        r.__dict__["_daekit_signal"] = sig
-    return sig
+        return sig
+
+    return r.derived("simulate.default_signal", build)
 
 
 def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> System:

@@ -166,6 +166,10 @@ class Monitor:
     #: length of the driver's first segment as a fraction of the span (the smallest over the
     #: monitors is used)
     first_segment: float = 0.25
+    #: whether a failed IDAS attempt is retried with the algebraic unknowns out of the error
+    #: test (False: the failure is the monitor's business; the driver then integrates up to
+    #: half-way to it, so that the monitor sees what led there)
+    retry_suppressed: bool = True
 
     def init(self, driver: Driver, t0: float, x0: np.ndarray, z0: np.ndarray) -> Any:
         """The monitor's state at the start (default None)."""
@@ -309,6 +313,7 @@ class Driver:
         self.notes: list[str] = []
         #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
         self.current = system
+        self._rate: float | None = None  # IDAS steps per unit time of the last run
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
@@ -325,12 +330,19 @@ class Driver:
         # the budget per grid interval (a plain run's 16 check points: four times the budget
         # of the 64 it used to have, the same total)
         per = System.first_budget * (4 if not self.monitors and self.checks <= 16 else 1)
+        if self.monitors and self._rate is not None and grid.size > 1:
+            # with monitors, a failing attempt (IDAS running into a singular dummy
+            # selection) costs its whole budget, again and again: fifty times the steps the
+            # run has been taking per unit time, at least 200
+            need = self._rate * float(np.max(np.diff(grid)))
+            per = int(min(per, max(200, 50 * need)))
         budget = {} if user_budget else {"max_num_steps": per}
         tries: list[tuple[dict, bool]] = []
         if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
         tries.append((budget, True))
-        if "suppress_algebraic" not in system.options:
+        if "suppress_algebraic" not in system.options and all(
+                getattr(m, "retry_suppressed", True) for m in self.monitors):
             tries.append(({**budget, "suppress_algebraic": True,
                            "step0": 1e-12 * max(1.0, self.span)}, True))
         if not user_budget and not self.monitors:
@@ -345,6 +357,9 @@ class Driver:
                 self.stats["failed_attempts"] = self.stats.get("failed_attempts", 0) + 1
                 continue
             self._count(st)
+            span_run = float(grid[-1] - grid[0])
+            if span_run > 0 and not k:
+                self._rate = max(st["steps"], 1) / span_run
             if k and not (first and k == 1):
                 self.notes.append(f"a first IDAS attempt failed ({first_exc.why}); a retry "
                                   "with other settings succeeded")

@@ -74,7 +74,8 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system,
     if isinstance(init, InitialValues):
         ip = np.asarray(init.p, dtype=float).ravel()
         other_t0 = abs(float(init.t0) - t0) > 1e-12 * max(1.0, abs(t0))
-        other_p = ip.size == np.size(pv) and not np.allclose(ip, pv, rtol=1e-12, atol=0.0)
+        other_p = ip.size == np.size(pv) and not np.array_equal(ip, pv) and not np.allclose(
+            ip, pv, rtol=1e-12, atol=0.0)
         u0 = sig.value(t0)
         if list(init.x_names) == list(r.x_names):
             x0 = np.asarray(init.x0, dtype=float)

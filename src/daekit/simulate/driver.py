@@ -166,10 +166,6 @@ class Monitor:
     #: length of the driver's first segment as a fraction of the span (the smallest over the
     #: monitors is used)
     first_segment: float = 0.25
-    #: whether a failed IDAS attempt is retried with the algebraic unknowns out of the error
-    #: test (False: the failure is the monitor's business; the driver then integrates up to
-    #: half-way to it, so that the monitor sees what led there)
-    retry_suppressed: bool = True
 
     def init(self, driver: Driver, t0: float, x0: np.ndarray, z0: np.ndarray) -> Any:
         """The monitor's state at the start (default None)."""
@@ -341,8 +337,7 @@ class Driver:
         if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
         tries.append((budget, True))
-        if "suppress_algebraic" not in system.options and all(
-                getattr(m, "retry_suppressed", True) for m in self.monitors):
+        if "suppress_algebraic" not in system.options:
             tries.append(({**budget, "suppress_algebraic": True,
                            "step0": 1e-12 * max(1.0, self.span)}, True))
         if not user_budget and not self.monitors:

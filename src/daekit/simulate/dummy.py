@@ -219,11 +219,6 @@ class PivotMonitor(Monitor):
     #: early firing wastes the rest of it, but a degrading pivot makes IDAS fail soon after,
     #: and the driver then integrates only up to half-way to the failure)
     first_segment = 1.0
-    #: IDAS fails where the selection turns singular: no retry past it with the algebraic
-    #: unknowns out of the error test (that integrated on across the singularity, thousands
-    #: of steps thrown away at every switch); the driver integrates up to half-way to the
-    #: failure and the pivot is seen degrading there
-    retry_suppressed = True
 
     def __init__(self, entry, pv, threshold: float = 3.0, growth: float = 2.5,
                  check_dt: float | None = None, known=None) -> None:
@@ -270,32 +265,12 @@ class PivotMonitor(Monitor):
             state["q_fire"] = float(q[hit[0]])
             return Firing(float(seg.t[j]), seg.X[j], seg.Z[j], index=j)
         state["q_seg"] = (float(q[-1]), float(seg.t[rows[-1]])) if rows.size else (qp, tp)
-        # the trend at the segment's end, for the length of the next one (horizon)
-        state["trend_seg"] = None
-        if rows.size >= 3:
-            k = max(0, rows.size - 4)
-            dt = float(seg.t[rows[-1]] - seg.t[rows[k]])
-            if dt > 0:
-                state["trend_seg"] = ((float(q[-1]) - float(q[k])) / dt, lim)
         return None
 
     def accept(self, seg, upto, state):
         if "q_seg" in state:
             state["q"], state["tq"] = state.pop("q_seg")
-            state["trend"] = state.pop("trend_seg", None)
         return state
-
-    def horizon(self, state):
-        """Where the pivot measure, falling at its present rate, would reach the limit: the
-        next segment ends a little before that (IDAS fails where a selection turns singular,
-        and a failed attempt costs its whole step budget); None while it is not falling."""
-        trend, q = state.get("trend"), state.get("q")
-        if not trend or q is None:
-            return None
-        slope, lim = trend
-        if not (slope < 0 and q > lim):
-            return None
-        return 0.8 * (q - lim) / -slope
 
     def _switch(self, t, x, z, system: System):
         from ..reduction import map_values, reselect

@@ -173,7 +173,7 @@ class Projector:
         return w[: self.nx], w[self.nx:], dx
 
 
-    def project_rows(self, T, X, Z, U, p, iters: int = 6, chunk: int = 8192):
+    def project_rows(self, T, X, Z, U, p, iters: int = 6, chunk: int = 4096):
         """Project many rows at once (the recorded output points): batched Gauss--Newton with
         the minimum-norm step ``dw = -D^+ J^T (J D^+ J^T)^{-1} h`` (small ``nh x nh`` solves,
         ``z`` free) where ``nx + nz + nh <= 96``, in chunks of ``chunk`` rows; else row by row

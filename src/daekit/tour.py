@@ -159,7 +159,7 @@ def _remedy_costs(rows: list[RemedyResult]) -> str:
         "GGL": "one IDAS run of an index-2 system (more unknowns, algebraic errors not "
                "controlled)",
         "dummy derivatives": "IDAS restarted at each re-selection of the states (when the "
-                             "pivot degrades, predicted from its trend), one integrator per "
+                             "pivot degrades), one integrator per "
                              "selection, the explicitly given derivatives substituted",
         "RATTLE": "a fixed-step symplectic method: cost set by h, not by a tolerance",
     }

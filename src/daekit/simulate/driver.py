@@ -309,7 +309,6 @@ class Driver:
         self.notes: list[str] = []
         #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
         self.current = system
-        self._rate: float | None = None  # IDAS steps per unit time of the last run
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
@@ -326,12 +325,6 @@ class Driver:
         # the budget per grid interval (a plain run's 16 check points: four times the budget
         # of the 64 it used to have, the same total)
         per = System.first_budget * (4 if not self.monitors and self.checks <= 16 else 1)
-        if self.monitors and self._rate is not None and grid.size > 1:
-            # with monitors, a failing attempt (IDAS running into a singular dummy
-            # selection) costs its whole budget, again and again: fifty times the steps the
-            # run has been taking per unit time, at least 200
-            need = self._rate * float(np.max(np.diff(grid)))
-            per = int(min(per, max(200, 50 * need)))
         budget = {} if user_budget else {"max_num_steps": per}
         tries: list[tuple[dict, bool]] = []
         if first and system.r.index < 2:
@@ -352,9 +345,6 @@ class Driver:
                 self.stats["failed_attempts"] = self.stats.get("failed_attempts", 0) + 1
                 continue
             self._count(st)
-            span_run = float(grid[-1] - grid[0])
-            if span_run > 0 and not k:
-                self._rate = max(st["steps"], 1) / span_run
             if k and not (first and k == 1):
                 self.notes.append(f"a first IDAS attempt failed ({first_exc.why}); a retry "
                                   "with other settings succeeded")

@@ -96,13 +96,7 @@ class InputSignal:
             sx = ca.vec(ca.densify(sx))
             if olds:
                 sx = ca.substitute(sx, ca.vertcat(*olds), ca.vertcat(*news))
-            col = fit_elements(sx, len(elems))
-            if col is None:
-                raise InputError(
-                    f"inputs: {key!r} has {count(len(elems), 'element')} but the expression has "
-                    f"{sx.numel()}"
-                )
-            sx = col
+            sx = fit_elements(sx, len(elems), f"inputs: {key!r}", InputError)
             others = [s for s in ca.symvar(sx) if not ca.is_equal(s, t)]
             if others:
                 raise InputError(

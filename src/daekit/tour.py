@@ -178,8 +178,9 @@ def _remedy_costs(rows: list[RemedyResult]) -> str:
             ev = f", {len(st['selection_switches'])} re-selections"
         ratio = r.wall_time / b.wall_time if b.wall_time > 0 else float("nan")
         steps = f"{r.steps / b.steps:.2g}x the steps, " if b.steps and r.steps else ""
+        what = how.get(key) or how.get(key.capitalize()) or ""
         lines.append(f"  {r.system}, {r.remedy}: {ratio:.2g}x the time, {steps}"
-                     f"max |c| {r.max_c:.1e} (none: {b.max_c:.1e}){ev}; {how.get(key, '')}")
+                     f"max |c| {r.max_c:.1e} (none: {b.max_c:.1e}){ev}" + (f"; {what}" if what else ""))
     return "\n".join(lines)
 
 
@@ -376,7 +377,7 @@ def _invariant_section(out: Path, t: np.ndarray, progress: bool) -> list[RemedyR
     fixed = {"q": list(data["q0"]), "w": list(data["w0"])}
     rows: list[RemedyResult] = []
     rates: list[float] = []
-    runs = [("none", None, "differentiate"), ("baumgarte (pole -1)", "baumgarte", "differentiate"),
+    runs = [("none", None, "differentiate"), ("Baumgarte (pole -1)", "baumgarte", "differentiate"),
             ("projection", "projection", "differentiate"),
             ("dummy derivatives", "dummy_derivatives", "dummy_derivatives")]
     for label, stab, method in runs:

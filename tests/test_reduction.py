@@ -679,7 +679,7 @@ def test_bad_point_poles_and_sizes_raise_reduction_errors():
     pend = ex.pendulum3d
     with pytest.raises(ReductionError, match=r"point\['p'\] has 2 values, but 'p' has 3"):
         reduce_index(pend(), method="dummy_derivatives", point={"p": [1, 2]})
-    with pytest.raises(ReductionError, match=r"point\['p'\] must be numbers"):
+    with pytest.raises(ReductionError, match=r"point\['p'\] = 'abc' is not numeric: it must be numbers"):
         reduce_index(pend(), method="dummy_derivatives", point={"p": "abc"})
     with pytest.raises(ReductionError, match=r"poles must be a number or a sequence"):
         baumgarte(reduce_index(pend()), poles="a")

@@ -27,7 +27,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import ModelError, StructuralError
-from .wording import count
+from .wording import count, listing
 
 __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name", "expand_name",
            "select_name", "fit_elements", "NameNotFoundError"]
@@ -123,18 +123,25 @@ def expand_name(name: str, keys, what: str = "the solution") -> list[str]:
     raise NameNotFoundError(f"{what} has no value named {name!r}; known names: {shown}")
 
 
-def fit_elements(expr: ca.SX, n: int) -> ca.SX | None:
-    """``expr`` as a dense column of ``n`` elements (one element is repeated ``n`` times), or
-    None for any other size (each caller words its own error): the one rule by which a value
-    given for a vector name is broadcast (inputs, resets, RATTLE's inputs).
+def fit_elements(expr: ca.SX, n: int, what: str, error: type[Exception] = ModelError) -> ca.SX:
+    """``expr`` as a dense column of ``n`` elements (one element is repeated ``n`` times): the
+    one rule by which a value given for a vector name is broadcast (inputs, resets, RATTLE's
+    inputs). Any other size raises ``error`` saying ``what`` needs how many values.
 
-    >>> fit_elements(ca.SX(2.0), 3).shape, fit_elements(ca.SX.zeros(2), 3)
-    ((3, 1), None)
+    >>> fit_elements(ca.SX(2.0), 3, "reset 'p'").shape
+    (3, 1)
+    >>> fit_elements(ca.SX.zeros(2), 3, "reset 'p'")
+    Traceback (most recent call last):
+    ...
+    daekit.errors.ModelError: reset 'p': 3 values needed (one per element, or one for all), got 2
     """
     col = ca.densify(ca.vec(expr))
     if col.numel() == 1 and n > 1:
         col = ca.repmat(col, n, 1)
-    return col if col.numel() == n else None
+    if col.numel() != n:
+        raise error(f"{what}: {count(n, 'value')} needed (one per element, or one for all), "
+                    f"got {int(ca.vec(expr).numel())}")
+    return col
 
 
 def select_name(name: str, keys, what: str = "the solution") -> tuple[list[str], bool]:
@@ -596,13 +603,7 @@ class Model:
             except Exception:  # noqa: BLE001 - turned into a daekit error
                 raise ModelError(f"model {self.name!r}, {where}, reset {key!r}: cannot convert "
                                  f"{type(value).__name__} to a CasADi expression") from None
-            col = fit_elements(val, len(elems))
-            if col is None:
-                raise ModelError(
-                    f"model {self.name!r}, {where}, reset {key!r}: {len(elems)} value(s) needed, "
-                    f"got {val.numel()}"
-                )
-            val = col
+            val = fit_elements(val, len(elems), f"model {self.name!r}, {where}, reset {key!r}")
             self._check_symbols(val, f"{where}, reset {key!r}")
             bad = _nonfinite_constants(val)
             if bad:
@@ -880,25 +881,25 @@ class Model:
         if over_e:
             if over_v:
                 lines.append(
-                    f"  Over-determined: the equations {_short(over_e)} involve only the unknowns "
-                    f"{_short(over_v)}, too few for them; remove or merge an equation there, or "
+                    f"  Over-determined: the equations {listing(over_e, 12)} involve only the unknowns "
+                    f"{listing(over_v, 12)}, too few for them; remove or merge an equation there, or "
                     "an unknown is missing."
                 )
             else:
                 lines.append(
-                    f"  Over-determined: the equations {_short(over_e)} involve no unknowns "
+                    f"  Over-determined: the equations {listing(over_e, 12)} involve no unknowns "
                     "(only time, inputs or parameters): they cannot be solved for anything; "
                     "remove them, or declare the unknown they should determine."
                 )
         if under_v and under_e:
             lines.append(
-                f"  Under-determined: the unknowns {_short(under_v)} appear only in the equations "
-                f"{_short(under_e)}, too few to determine them; add an equation, or declare one "
+                f"  Under-determined: the unknowns {listing(under_v, 12)} appear only in the equations "
+                f"{listing(under_e, 12)}, too few to determine them; add an equation, or declare one "
                 "of them as a control or parameter."
             )
         elif under_v:
             lines.append(
-                f"  Under-determined: the unknowns {_short(under_v)} appear in no equation; add "
+                f"  Under-determined: the unknowns {listing(under_v, 12)} appear in no equation; add "
                 "an equation for them, or remove them, or declare them as controls or parameters."
             )
         raise StructuralError(
@@ -918,12 +919,6 @@ class Model:
 def _count(n: int, noun: str) -> str:
     """``"1 equation"``, ``"3 equations"`` (:func:`daekit.wording.count`)."""
     return count(n, noun)
-
-
-def _short(names: list[str], limit: int = 12) -> str:
-    if len(names) <= limit:
-        return ", ".join(repr(n) for n in names)
-    return ", ".join(repr(n) for n in names[:limit]) + f", ... ({len(names)} in all)"
 
 
 def _zero_entries(sx: ca.SX) -> list[int]:

@@ -52,8 +52,10 @@ DENSE_UNKNOWNS = 300
 POINT_TOL = 1e-10
 
 
-def check_point(model, point) -> dict[str, np.ndarray]:
-    """The user's ``point`` as ``{name: values}``, each checked for type, size, finiteness.
+def check_point(model, point, error: type[Exception] = ModelError) -> dict[str, np.ndarray]:
+    """The user's ``point`` as ``{name: values}``, each checked for type, size, finiteness:
+    the one check of a ``point=`` argument (``analyze``, ``reduce_index``); ``error`` is the
+    class the caller raises.
 
     >>> import daekit as dk
     >>> m = dk.Model("m"); p = m.state("p", 2)
@@ -63,31 +65,31 @@ def check_point(model, point) -> dict[str, np.ndarray]:
     if point is None:
         return {}
     if not isinstance(point, dict):
-        raise ModelError(
+        raise error(
             f"model {model.name!r}: point must be a dict of values by name, e.g. "
             f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"
         )
     out = {}
     for name, val in point.items():
         if not isinstance(name, str):
-            raise ModelError(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
+            raise error(f"model {model.name!r}: point key {name!r} is not a name such as 'p'")
         size = 1 if name == "t" else len(model.resolve(name))
         try:
             arr = np.asarray(val, dtype=float).ravel()
         except (TypeError, ValueError):
-            raise ModelError(
-                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric; give "
-                + ("a number" if size == 1 else f"a number or {size} numbers")
+            raise error(
+                f"model {model.name!r}: point[{name!r}] = {val!r} is not numeric: it must be numbers ("
+                + ("a number" if size == 1 else f"a number or {size} numbers") + ")"
             ) from None
         if arr.size == 1:
             arr = np.full(size, arr[0])
         if arr.size != size:
-            raise ModelError(
+            raise error(
                 f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
                 f"has {count(size, 'element')}; give {count(size, 'value')} (or one for all)"
             )
         if not np.all(np.isfinite(arr)):
-            raise ModelError(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
+            raise error(f"model {model.name!r}: point[{name!r}] = {val!r} is not finite")
         out[name] = arr
     return out
 

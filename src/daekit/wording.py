@@ -10,7 +10,7 @@
 
 from __future__ import annotations
 
-__all__ = ["count", "plural"]
+__all__ = ["count", "plural", "derivative_name", "listing"]
 
 
 def plural(noun: str) -> str:
@@ -41,3 +41,26 @@ def count(n: int, noun: str, plural_form: str | None = None) -> str:
     if n == 1:
         return f"{n} {noun}"
     return f"{n} {plural_form or plural(noun)}"
+
+
+def derivative_name(equation: str, k: int) -> str:
+    """The name of the ``k``-th time derivative of an equation, as every message and every
+    reduced system writes it.
+
+    >>> derivative_name("rod", 0), derivative_name("rod", 1), derivative_name("rod", 2)
+    ('rod', 'd/dt rod', 'd2/dt2 rod')
+    """
+    if k == 0:
+        return equation
+    return f"d/dt {equation}" if k == 1 else f"d{k}/dt{k} {equation}"
+
+
+def listing(names: list[str], limit: int = 10) -> str:
+    """Names quoted and joined for a message, at most ``limit`` of them and then how many in
+    all.
+
+    >>> listing(["rod", "newton"]), listing([f"e{i}" for i in range(5)], 2)
+    ("'rod', 'newton'", "'e0', 'e1', ... (5 in all)")
+    """
+    shown = ", ".join(repr(n) for n in names[:limit])
+    return shown + (f", ... ({len(names)} in all)" if len(names) > limit else "")

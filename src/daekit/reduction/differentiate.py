@@ -31,17 +31,9 @@ import numpy as np
 from ..errors import ReductionError
 from ..model import Model, Variable
 from ..structure import sigma_method
+from ..wording import derivative_name
 
-__all__ = ["time_derivative", "Expansion", "expand"]
-
-
-def _derivative_suffix(k: int) -> str:
-    return "" if k == 0 else ("d/dt " if k == 1 else f"d{k}/dt{k} ")
-
-
-def derivative_name(equation: str, k: int) -> str:
-    """``"rod"``, ``"d/dt rod"``, ``"d2/dt2 rod"``, ... for the k-th derivative of an equation."""
-    return _derivative_suffix(k) + equation
+__all__ = ["time_derivative", "Expansion", "expand", "derivative_name"]
 
 
 def _registry(model: Model) -> dict[int, tuple[Variable, int, int]]:

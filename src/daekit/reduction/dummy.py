@@ -64,10 +64,10 @@ from .. import numerics
 from ..errors import ReductionError
 from ..model import Model
 from ..numerics import RANK_RTOL
+from ..points import check_point
 from ..reduced import ReducedDAE
 from ..structure import block_triangular, dulmage_mendelsohn
 from ..threads import limit_blas_threads
-from ..wording import count
 from .assemble import (
     all_symbols,
     assemble,
@@ -89,25 +89,12 @@ def _point_vector(ex, point: Mapping | None, seed: int):
     rng = np.random.default_rng(seed)
     vals: dict[tuple[int, int, int], float] = {}
     t = 0.0
-    if point:
-        if not isinstance(point, Mapping):
-            raise ReductionError(
-                f"model {model.name!r}: point must be a dict of values by name "
-                f"({{'x': 1.0, 'der(x)': 0.0}}), got {type(point).__name__}"
-            )
-        for name, value in point.items():
-            if name == "t":
-                try:
-                    t = float(value)
-                except (TypeError, ValueError):
-                    raise ReductionError(
-                        f"model {model.name!r}: point['t'] must be one number, got {value!r}"
-                    ) from None
-                continue
-            els = model.resolve(name)
-            arr = _point_entry(model, name, value, len(els))
-            for (var, i, order), a in zip(els, arr, strict=True):
-                vals[id(var), i, order] = float(a)
+    for name, arr in check_point(model, point, ReductionError).items():  # the one check of a user's point
+        if name == "t":
+            t = float(arr[0])
+            continue
+        for (var, i, order), a in zip(model.resolve(name), arr, strict=True):
+            vals[id(var), i, order] = float(a)
 
     def get(var, i, order, default):
         return vals.get((id(var), i, order), default)
@@ -126,26 +113,6 @@ def _point_vector(ex, point: Mapping | None, seed: int):
         for i in range(var.size):
             P.append(get(var, i, 0, float(var.default[i])))
     return t, np.asarray(X), np.asarray(U), np.asarray(P)
-
-
-def _point_entry(model, name: str, value, size: int) -> np.ndarray:
-    """``point[name]`` as ``size`` floats (one number is broadcast); a ReductionError naming
-    the entry and the expected size otherwise."""
-    try:
-        arr = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] must be numbers ({count(size, 'value')} for "
-            f"{name!r}), got {value!r}"
-        ) from None
-    if arr.size == 1:
-        return np.full(size, float(arr[0]))
-    if arr.size != size:
-        raise ReductionError(
-            f"model {model.name!r}: point[{name!r}] has {count(arr.size, 'value')}, but {name!r} "
-            f"has {count(size, 'element')}; give {count(size, 'number')} (or one number for all)"
-        )
-    return arr
 
 
 _DENSE_STAGE = 400  # stages with more equations are split into blocks

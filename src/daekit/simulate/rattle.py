@@ -138,13 +138,7 @@ def _bind_inputs(
                 )
             if free:
                 expr = ca.substitute(expr, free[0], sysm.t)
-        col = fit_elements(expr, len(elems))
-        if col is None:
-            raise SimulationError(
-                f"RATTLE: input {key!r} has {count(len(elems), 'element')} but "
-                f"{count(expr.numel(), 'value')}"
-            )
-        expr = col
+        expr = fit_elements(expr, len(elems), f"RATTLE: input {key!r}", SimulationError)
         for k, i in enumerate(elems):
             vals[i] = expr[k]
     for i in range(nu):  # inputs not given are zero (as in daekit.simulate)

@@ -905,3 +905,85 @@ def test_cartpole_swing_up_from_the_default_guess(full):
     ref = cartpole_minimal_coordinates()
     assert abs(sol.objective - ref) < 1e-4, (sol.objective, ref)
     assert "algebraic equation" not in sol.report
+
+
+def _structured_problems():
+    yield betts_pendulum_ocp()  # polynomial controls, bounds, redundant initial values
+    m = pendulum_with_tangential_force(L=1.0, g=9.81)  # constant controls
+    u = m.variables["u"].sym
+    p = m.variables["p"].sym
+    ocp = OCP(m, t_final=2.0, intervals=12, degree=2)
+    ocp.minimize(integral=u**2 + p[0] ** 2, final=ca.sumsqr(m.der(p)))
+    ocp.constrain(u * p[1], -3.0, 3.0, name="power")  # a path constraint
+    ocp.initial({"p": [0.0, -1.0], "v": [0.0, 0.0]})
+    ocp.final({"p": [np.sin(0.5), -np.cos(0.5)]})
+    yield ocp
+    m, s, u = _double_integrator()  # an ODE (no algebraic unknowns), integrand in t
+    yield OCP(m, t_final=2.0, intervals=10).minimize(integral=(u - m.t) ** 2 * s).initial(
+        {"s": 1, "der(s)": 0})
+
+
+@pytest.mark.parametrize("case", [0, 1, 2])
+def test_closed_form_collocation_derivatives_match_casadi_ad(case):
+    """The collocation's constraint Jacobian and Lagrangian Hessian in closed form (per-point
+    model derivatives scattered into place, daekit.ocp.collocation.STRUCTURED) equal CasADi's
+    AD of the same NLP at random points and multipliers."""
+    from daekit.ocp.boundary import analyze
+    from daekit.ocp.collocation import transcribe
+    from daekit.ocp.guess import make_guess
+
+    ocp = list(_structured_problems())[case]
+    prob = ocp.compile()
+    g = make_guess(prob, None)
+    ba = analyze(prob, g)
+    tr = transcribe(prob, g.fun, g.T, g.p, kept=ba.kept, selectors=ba.selectors, pins=ba.pins)
+    assert tr.derivatives is not None
+    V, G, J = tr.builder.V(), tr.builder.G(), tr.J
+    lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", G.numel())
+    jac_ad = ca.Function("j", [V], [ca.jacobian(G, V)])
+    hess_ad = ca.Function("h", [V, lf, lg], [ca.triu(ca.hessian(lf * J + ca.dot(lg, G), V)[0])])
+    rng = np.random.default_rng(1)
+    for _ in range(2):
+        v = rng.standard_normal(V.numel())
+        lam = rng.standard_normal(G.numel())
+        g_cf, J_cf = tr.derivatives["jac_g"](v, [])
+        H_cf = tr.derivatives["hess_lag"](v, [], 0.7, lam)
+        J_ref, H_ref = jac_ad(v), hess_ad(v, 0.7, lam)
+        g_ad = ca.Function("g", [V], [G])(v)
+        assert np.allclose(np.asarray(g_cf).ravel(), np.asarray(g_ad).ravel())
+        for A, R in ((J_cf, J_ref), (H_cf, H_ref)):
+            A, R = np.asarray(ca.densify(A)), np.asarray(ca.densify(R))
+            assert np.max(np.abs(A - R)) <= 1e-10 * max(1.0, np.max(np.abs(R)))
+
+
+def test_quadratic_composite_derivatives_match_casadi_ad():
+    """The blend's closed-form derivatives (f quadratic in (V, Q), g linear in Q, Q a model
+    mapped over points: daekit.ocp.derivatives.quadratic_composite) equal CasADi's AD of the
+    composed NLP at random points and multipliers."""
+    from daekit.ocp.derivatives import quadratic_composite
+
+    rng = np.random.default_rng(2)
+    K, ny = 4, 2
+    y = ca.SX.sym("y", ny)
+    t = ca.SX.sym("t")
+    q = ca.vertcat(ca.sin(y[0]) * y[1] + t, y[0] ** 2 + y[1] ** 3, ca.exp(0.3 * y[1]))
+    V = ca.MX.sym("V", K * ny)
+    Q = ca.MX.sym("Q", 3, K)
+    A, Bm = rng.standard_normal((5, K * ny)), rng.standard_normal((5, 3 * K))
+    f = ca.sumsqr(ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1) + ca.sum2(Q[2, :])
+    g = ca.vec(Q[:2, 1:])
+    pts = np.arange(K * ny).reshape(K, ny)
+    ts = ca.DM(np.linspace(0, 1, K)).T
+    f_r, g_r, opts = quadratic_composite(V, Q, f, g, q, y, [t, y], (ts, ca.reshape(V, ny, K)),
+                                         pts)
+    lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", g.numel())
+    ref = ca.Function("ref", [V, lf, lg], [ca.gradient(f_r, V), ca.jacobian(g_r, V),
+                                           ca.triu(ca.hessian(lf * f_r + ca.dot(lg, g_r), V)[0])])
+    for _ in range(3):
+        v, lam = rng.standard_normal(K * ny), rng.standard_normal(g.numel())
+        gr, jg, H = ref(v, 0.8, lam)
+        cf = (opts["grad_f"](v, [])[1], opts["jac_g"](v, [])[1],
+              opts["hess_lag"](v, [], 0.8, lam))
+        for A_, R_ in zip(cf, (gr, jg, H), strict=True):
+            A_, R_ = np.asarray(ca.densify(A_)), np.asarray(ca.densify(R_))
+            assert np.max(np.abs(A_ - R_)) <= 1e-10 * max(1.0, np.max(np.abs(R_)))

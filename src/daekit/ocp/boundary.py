@@ -34,6 +34,7 @@ import numpy as np
 from .consistency import (
     BoundaryAnalysis,
     analyze_boundary,
+    as_array,
     conflicting_conditions,
     project_ends,
     project_ends_many,
@@ -255,8 +256,8 @@ def columns(fun, rows=None):
     def sub(V0, VT, p, T):
         k = V0.shape[1]
         R, J = fun(V0, VT, p, T)
-        R = np.asarray(R, float).reshape(-1, k)
-        J = np.asarray(J, float).reshape(R.shape[0], k, 2 * V0.shape[0])
+        R = as_array(R).reshape(-1, k)
+        J = as_array(J).reshape(R.shape[0], k, 2 * V0.shape[0])
         return (R, J) if rows is None else (R[rows], J[rows])
 
     return sub

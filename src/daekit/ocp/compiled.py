@@ -281,9 +281,14 @@ def compile_problem(ocp) -> Problem:
     v = ca.vertcat(a.x, a.z, a.w)
     conds = [Condition(*c) for c in ocp._bc_user]
     rows = []
-    for c in conds:
-        e0 = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(0.0, v0)])[0]
-        eT = ca.substitute([c.expr], [ca.vertcat(a.t, v)], [ca.vertcat(Tsym, vT)])[0]
+    # all conditions at both ends in one substitution each (not two per condition)
+    sizes = [int(c.expr.numel()) for c in conds]
+    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    allc = ca.vertcat(*[ca.vec(c.expr) for c in conds]) if conds else ca.SX(0, 1)
+    sub = ca.Function("ends", [ca.vertcat(a.t, v)], [allc])
+    all0, allT = sub(ca.vertcat(0.0, v0)), sub(ca.vertcat(Tsym, vT))
+    for k, c in enumerate(conds):
+        e0, eT = all0[offs[k]:offs[k + 1]], allT[offs[k]:offs[k + 1]]
         if isinstance(c.value, tuple):  # up to sign: b . v(T), or a minor of [v(T) v(0)]
             rows.append(ca.dot(ca.DM(c.value[1]), eT) if c.value[0] == "normal" else
                         eT[0] * e0[1] - eT[1] * e0[0])

@@ -72,6 +72,8 @@ def solve_once(prob, g, ba, redundancy: str, check: bool, t_start: float,
     x0 = np.clip(x0, lbx, ubx)
     V, G = B.V(), B.G()
     opts = ipopt_options(prob, tr.hessian_exact)
+    if tr.derivatives and tr.hessian_exact:
+        opts.update(tr.derivatives)
     lam0 = {}
     if (g.lam is not None and g.V is not None and g.key == key
             and g.lam[0].size == x0.size and g.lam[1].size == lbg.size):

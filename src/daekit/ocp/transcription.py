@@ -33,6 +33,7 @@ class Transcription:
     controls: ca.Function | None = None
     node_index: list[int] | None = None
     ncoef: int = 1
+    derivatives: dict | None = None  # IPOPT's jac_g / hess_lag in closed form, when built
 
 
 def params_and_time(prob, B: NLPBuilder, T_guess: float | None = None, p_guess=None):

@@ -26,8 +26,8 @@ pendulum (analyze + reduce + initialize, best of 30).
 Run: ``python benchmarks/scaling.py [N ...] [--cpu] [--figure PATH] [--stages a,b,...]``
 (``--cpu``: CPU time of this process instead of wall time; ``--stages``: only these of
 ``dummy``, ``init fixed``, ``simulate`` (with ``raw IDAS``), ``analyze`` beside reduce and
-initialize) (default sizes 100 200 500 1000 2000 5000 10000 20000; the figure, a log-log plot of the stages, goes to
-``benchmarks/scaling.png``).
+initialize) (default sizes 100 200 500 1000 2000 5000 10000 20000; the figure, a log-log plot
+of the stages, goes to ``benchmarks/scaling.png``).
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ caller can stay silent and still read what was said.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import io
 import os
@@ -22,6 +23,17 @@ _AT_T = re.compile(r"At t\s*=\s*([-+0-9.eE]+)")
 
 class _Captured:
     text = ""
+
+
+#: temporary files not in use (one is taken per block and truncated after it: creating a
+#: file per call cost a tenth of a millisecond, comparable to a short integration)
+_FREE: list = []
+
+
+@atexit.register
+def _close_free() -> None:
+    while _FREE:
+        _FREE.pop().close()
 
 
 @contextlib.contextmanager
@@ -42,7 +54,10 @@ def c_output(enabled: bool = True):
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
-    tmp = tempfile.TemporaryFile()
+    try:
+        tmp = _FREE.pop()
+    except IndexError:
+        tmp = tempfile.TemporaryFile()
     # CasADi's Python module routes its own messages through sys.stdout/sys.stderr, plain C
     # code writes to the descriptors: catch both
     py_out, py_err = sys.stdout, sys.stderr
@@ -63,7 +78,9 @@ def c_output(enabled: bool = True):
             os.close(fd)
         tmp.seek(0)
         out.text = tmp.read().decode(errors="replace") + buf.getvalue()
-        tmp.close()
+        tmp.seek(0)
+        tmp.truncate()
+        _FREE.append(tmp)
 
 
 def failure_time(text: str) -> float | None:

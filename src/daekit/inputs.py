@@ -193,8 +193,26 @@ class InputSignal:
             out[j] = cache[id(f)][k]
         return out
 
+    def _constant_value(self) -> np.ndarray | None:
+        """The input vector when it does not change with time (the default: zero), else None
+        (worked out once)."""
+        if self.has_callables:
+            return None
+        if self._constant is None:
+            self._constant = (not ca.depends_on(self.expr, self.r.t)) and self.expr.is_constant()
+        if not self._constant:
+            return None
+        u0 = self.__dict__.get("_u0")
+        if u0 is None:
+            u0 = self._u0 = np.asarray(ca.DM(self.expr), dtype=float).ravel()
+        return u0
+
     def value(self, t: float) -> np.ndarray:
         """The numeric input vector at time ``t``; a NaN raises :class:`InputError` naming it."""
+        u0 = self._constant_value()
+        if u0 is not None:
+            self.check_finite(u0, t)
+            return u0.copy()
         cb = self.callable_values(t)
         u = np.asarray(self._fexpr(float(t), cb), dtype=float).ravel()
         self.check_finite(u, t)
@@ -205,11 +223,9 @@ class InputSignal:
         ts = np.asarray(ts, dtype=float).ravel()
         if self.nu == 0:
             return np.zeros((ts.size, 0))
-        if not self.has_callables and self._constant is None:
-            self._constant = (not ca.depends_on(self.expr, self.r.t)) and self.expr.is_constant()
-        if not self.has_callables and self._constant:
+        u0 = self._constant_value()
+        if u0 is not None:
             # inputs that do not change (the default: zero): one evaluation
-            u0 = np.asarray(ca.DM(self.expr), dtype=float).ravel()
             self.check_finite(u0, float(ts[0]) if ts.size else 0.0)
             return np.repeat(u0[None, :], ts.size, axis=0)
         if not self.has_callables:

@@ -149,6 +149,18 @@ def _remedies(system_name, model, lag, fixed, guess, t, energy, inputs, progress
     return r, init, rows
 
 
+def _analysis_section(title: str, model, figure: Path) -> None:
+    """A section's heading, the model's analysis explained, and its structure figure."""
+    import daekit as dk
+
+    _say("=" * 78)
+    _say(title)
+    _say("=" * 78)
+    a = dk.analyze(model)
+    _say(a.explain())
+    _save(a.plot_structure(), figure)
+
+
 def _remedy_costs(rows: list[RemedyResult]) -> str:
     """What each remedy cost in this run, relative to no remedy on the same system (measured,
     wall times of one run on this machine)."""
@@ -159,7 +171,8 @@ def _remedy_costs(rows: list[RemedyResult]) -> str:
         "GGL": "one IDAS run of an index-2 system (more unknowns, algebraic errors not "
                "controlled)",
         "dummy derivatives": "IDAS restarted at each re-selection of the states (when the "
-                             "pivot degrades), one integrator per selection",
+                             "pivot degrades), one integrator per "
+                             "selection, the explicitly given derivatives substituted",
         "RATTLE": "a fixed-step symplectic method: cost set by h, not by a tolerance",
     }
     lines = ["What each remedy cost here (relative to no remedy on the same system):"]
@@ -254,13 +267,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
     rows: list[RemedyResult] = []
 
     # ------------------------------------------------------------------ 3D pendulum
-    _say("=" * 78)
-    _say("1. The 3D pendulum (lecture L3): p' = v, m v' = u - m g e3 - z p, 0 = (p.p - L^2)/2")
-    _say("=" * 78)
     m = dk.examples.pendulum3d()
-    a = dk.analyze(m)
-    _say(a.explain())
-    _save(a.plot_structure(), out / "pendulum3d_structure.png")
+    _analysis_section("1. The 3D pendulum (lecture L3): p' = v, m v' = u - m g e3 - z p, "
+                      "0 = (p.p - L^2)/2", m, out / "pendulum3d_structure.png")
     _say("")
     r = dk.reduce_index(m)
     _say(f"Reduced: {r}. Consistency conditions: {', '.join(r.invariant_names)}.")
@@ -286,13 +295,9 @@ def run_tour(out: str | Path = "daekit-tour", t_end: float = 100.0, quiet: bool 
 
     # ------------------------------------------------------------------ delta robot
     _say("")
-    _say("=" * 78)
-    _say("2. The delta robot (lecture L4): three arms, a platform, three rods; index 3")
-    _say("=" * 78)
     md = dk.examples.delta_robot()
-    ad = dk.analyze(md)
-    _say(ad.explain())
-    _save(ad.plot_structure(), out / "delta_robot_structure.png")
+    _analysis_section("2. The delta robot (lecture L4): three arms, a platform, three rods; index 3",
+                      md, out / "delta_robot_structure.png")
     # The motors are off (u = 0): the robot swings about its hanging equilibrium, where the
     # arms' gravity torque balances the platform's weight (found from the home configuration).
     from scipy.optimize import brentq

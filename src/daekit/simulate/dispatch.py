@@ -17,14 +17,14 @@ from collections.abc import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
-from ..inputs import InputError, InputSignal, resolve_params
+from ..inputs import InputError, resolve_params
 from ..reduced import ReducedDAE
 from ..reduction.accept import as_reduced
 from ..wording import count
 from .driver import Driver
 from .idas import run_algebraic, run_idas
 from .projection import DriftMonitor, Projector, default_drift_tol
-from .system import EVENT_KEYWORDS, check_idas_options, system_for
+from .system import EVENT_KEYWORDS, check_idas_options, signal_for, system_for
 from .trajectory import Trajectory
 
 __all__ = ["simulate", "STABILIZATIONS"]
@@ -74,7 +74,8 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system,
     if isinstance(init, InitialValues):
         ip = np.asarray(init.p, dtype=float).ravel()
         other_t0 = abs(float(init.t0) - t0) > 1e-12 * max(1.0, abs(t0))
-        other_p = ip.size == np.size(pv) and not np.allclose(ip, pv, rtol=1e-12, atol=0.0)
+        other_p = ip.size == np.size(pv) and not np.array_equal(ip, pv) and not np.allclose(
+            ip, pv, rtol=1e-12, atol=0.0)
         u0 = sig.value(t0)
         if list(init.x_names) == list(r.x_names):
             x0 = np.asarray(init.x0, dtype=float)
@@ -358,7 +359,7 @@ def simulate(
         # else IDAS takes tiny steps (Brenan, Campbell, Petzold 1996, sec. 5.4)
         options = {**options, "suppress_algebraic": True}
     pv = resolve_params(r_int, params)
-    sig = InputSignal(r_int, inputs)
+    sig = signal_for(r_int, inputs)
     U = sig.values(tg)  # NaN check on the grid (names the input)
     system = system_for(r_int, sig, rtol, atol, options)
     x0, z0 = initial_state(r_int, init, float(tg[0]), inputs, params, sig, pv, system,
@@ -404,13 +405,10 @@ def simulate(
             # the recorded rows onto the manifold too (read-only: the integration is not
             # touched), so the results satisfy the invariants to rounding
             for part in res.parts:
-                sy, ts, xs, zs = part
-                if ts:
-                    T = np.asarray(ts, float)
-                    Xo, Zo = proj.project_rows(T, np.asarray(xs, float).reshape(T.size, sy.nx),
-                                               np.asarray(zs, float).reshape(T.size, sy.nz),
-                                               sy.sig.values(T), pv)
-                    part[2][:], part[3][:] = list(Xo), list(Zo)
+                sy = part[0]
+                T, X, Z = res.arrays(part)
+                if T.size:
+                    res.set_rows(part, *proj.project_rows(T, X, Z, sy.sig.values(T), pv))
         traj = res.trajectory()
         extra = {"projections": nproj, "drift_tol": tol, "restart_drift_tol": restart_tol,
                  "output_projected": bool(project_output),

@@ -200,25 +200,46 @@ class Monitor:
 
 @dataclass
 class DriverResult:
-    """What :meth:`Driver.run` returns: the recorded rows per system, events, statistics."""
+    """What :meth:`Driver.run` returns: the recorded rows per system, events, statistics.
 
-    parts: list = field(default_factory=list)  # [(system, [t], [x], [z])]
+    ``parts`` is a list of ``(system, t chunks, x chunks, z chunks)``, one per system integrated
+    (dummy derivatives switch systems); the chunks are arrays (``(k,)``, ``(k, nx)``,
+    ``(k, nz)``) read with :meth:`arrays` and replaced with :meth:`set_rows`."""
+
+    parts: list = field(default_factory=list)  # [(system, [t (k,)], [X (k, nx)], [Z (k, nz)])]
     events: list = field(default_factory=list)  # [(t, label)]
     stats: dict = field(default_factory=dict)
+
+    @staticmethod
+    def arrays(part) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(T, X, Z)`` of one part, the chunks joined."""
+        system, ts, xs, zs = part
+        if not ts:
+            return np.zeros(0), np.zeros((0, system.nx)), np.zeros((0, system.nz))
+        if len(ts) == 1:
+            return ts[0], xs[0], zs[0]
+        return np.concatenate(ts), np.concatenate(xs), np.concatenate(zs)
+
+    @staticmethod
+    def set_rows(part, X, Z) -> None:
+        """Replace the rows of ``part`` (same times), e.g. by projected ones."""
+        T = DriverResult.arrays(part)[0]
+        part[1][:] = [T]
+        part[2][:] = [np.asarray(X, dtype=float).reshape(T.size, part[0].nx)]
+        part[3][:] = [np.asarray(Z, dtype=float).reshape(T.size, part[0].nz)]
 
     def trajectory(self, extra_stats: dict | None = None) -> Trajectory:
         """The :class:`Trajectory` (by the original model's names) of the recorded rows."""
         stats = dict(self.stats)
         stats.update(extra_stats or {})
         trajs = []
-        for system, ts, xs, zs in self.parts:
-            if not ts:
+        pv = self.stats.get("_p")
+        for part in self.parts:
+            system = part[0]
+            tt, X, Z = self.arrays(part)
+            if not tt.size:
                 continue
-            tt = np.asarray(ts, dtype=float)
-            X = np.asarray(xs, dtype=float).reshape(tt.size, system.nx)
-            Z = np.asarray(zs, dtype=float).reshape(tt.size, system.nz)
             U = system.sig.values(tt)
-            pv = self.stats.get("_p")
             trajs.append(make_trajectory(system.r, tt, X, Z, U, pv, {}, system.evaluator))
         stats.pop("_p", None)
         if not trajs:
@@ -235,6 +256,13 @@ class DriverResult:
         tr = Trajectory(t, vals, inv, trajs[0].invariant_names, stats)
         tr.events = list(self.events)
         return tr
+
+
+def _push(cur, t: float, x, z) -> None:
+    """Append one row to the current part."""
+    cur[1].append(np.array([float(t)]))
+    cur[2].append(np.asarray(x, dtype=float).reshape(1, -1).copy())
+    cur[3].append(np.asarray(z, dtype=float).reshape(1, -1).copy())
 
 
 class Driver:
@@ -254,7 +282,7 @@ class Driver:
     progress : bool
         Progress bar (on a terminal only).
     checks : int
-        Check points per segment (default 32 with monitors, 64 without).
+        Check points per segment (default 32 with monitors, 16 without).
     label : str
         For the progress bar and messages.
     """
@@ -270,7 +298,9 @@ class Driver:
         self.progress = progress
         # check points per segment: with monitors where they look; without, they only bound
         # the steps a failing attempt may take (IDAS interpolates them: no effect on steps)
-        self.checks = int(checks) if checks is not None else (32 if self.monitors else 64)
+        # (each output of a CasADi grid integrator costs a few microseconds: a plain run
+        # takes 16, whose intervals get a four times larger step budget, see _attempt)
+        self.checks = int(checks) if checks is not None else (32 if self.monitors else 16)
         self.label = label
         self.span = float(self.tg[-1] - self.tg[0])
         self.stats: dict = {"steps": 0, "residual_evaluations": 0, "jacobian_evaluations": 0,
@@ -292,7 +322,10 @@ class Driver:
         attempt gets the full budget. A failing attempt gives up early: grid intervals are
         short (check points), the budget is ``System.first_budget`` steps per interval."""
         user_budget = "max_num_steps" in system.options
-        budget = {} if user_budget else {"max_num_steps": System.first_budget}
+        # the budget per grid interval (a plain run's 16 check points: four times the budget
+        # of the 64 it used to have, the same total)
+        per = System.first_budget * (4 if not self.monitors and self.checks <= 16 else 1)
+        budget = {} if user_budget else {"max_num_steps": per}
         tries: list[tuple[dict, bool]] = []
         if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
@@ -396,9 +429,24 @@ class Driver:
         chk = np.linspace(t, tb, n + 1)
         chk[0], chk[-1] = t, tb
         pts.append(chk[1:-1])
-        grid = np.unique(np.concatenate(pts))
-        is_out = np.isin(grid, outs)
-        is_chk = np.isin(grid, chk)
+        raw = np.concatenate(pts)
+        # sorted, duplicates merged, with the flags of the merged points (one sort)
+        o_raw = np.zeros(raw.size, bool)
+        o_raw[1: 1 + outs.size] = True
+        c_raw = ~o_raw
+        c_raw[1: 1 + outs.size] = raw[1: 1 + outs.size] == tb  # an output at tb is chk[-1]
+        order = np.argsort(raw, kind="stable")
+        ps = raw[order]
+        new = np.empty(ps.size, bool)
+        new[0] = True
+        np.not_equal(ps[1:], ps[:-1], out=new[1:])
+        starts = np.nonzero(new)[0]
+        grid = ps[starts]
+        if starts.size == ps.size:
+            is_out, is_chk = o_raw[order], c_raw[order]
+        else:
+            is_out = np.logical_or.reduceat(o_raw[order], starts)
+            is_chk = np.logical_or.reduceat(c_raw[order], starts)
         # a check point closer than 1e-9 of the segment after an output point: dropped, the
         # output row stands for it (check rows depend only on the segment, not on the grid)
         if grid.size > 2:
@@ -417,7 +465,8 @@ class Driver:
         system = self.system
         t, x, z = float(tg[0]), self.x0.copy(), self.z0.copy()
         result = DriverResult(stats=self.stats)
-        cur = (system, [t], [x.copy()], [z.copy()])
+        cur = (system, [], [], [])
+        _push(cur, t, x, z)
         result.parts.append(cur)
         states = [m.init(self, t, x, z) for m in self.monitors]
         k = 1
@@ -501,9 +550,7 @@ class Driver:
                 k = int(np.searchsorted(tg, te, side="left"))
                 at_output = k < n and abs(tg[k] - te) <= 1e-13 * max(1.0, abs(te))
                 if act.record:
-                    cur[1].append(te)
-                    cur[2].append(np.asarray(f.x, float).copy())
-                    cur[3].append(np.asarray(f.z, float).copy())
+                    _push(cur, te, f.x, f.z)
                 if act.label is not None:
                     result.events.append((te, act.label))
                 same_time_events = same_time_events + 1 if te <= t else 0
@@ -514,9 +561,7 @@ class Driver:
                         t=te, trajectory=result.trajectory())
                 system, x, z, cur = self._apply(act, system, te, f.x, f.z, result, cur)
                 if act.record or at_output:
-                    cur[1].append(te)
-                    cur[2].append(x.copy())
-                    cur[3].append(z.copy())
+                    _push(cur, te, x, z)
                     if at_output:
                         k += 1
                 if act.terminal:
@@ -572,9 +617,10 @@ class Driver:
         sel = np.nonzero(seg.output[1: upto + 1])[0] + 1
         if before is not None:
             sel = sel[seg.t[sel] < before]
-        cur[1].extend(seg.t[sel].tolist())
-        cur[2].extend(seg.X[sel])  # row views of arrays no one writes to
-        cur[3].extend(seg.Z[sel])
+        if sel.size:
+            cur[1].append(seg.t[sel])
+            cur[2].append(seg.X[sel])
+            cur[3].append(seg.Z[sel])
 
     def _apply(self, act: Action, system: System, t: float, x, z, result: DriverResult, cur):
         x = np.asarray(act.x if act.x is not None else x, dtype=float).ravel().copy()

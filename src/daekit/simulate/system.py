@@ -33,6 +33,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import threading
 from collections.abc import Mapping
 
 import casadi as ca
@@ -41,9 +42,10 @@ import scipy.sparse as sp
 
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
-from .trajectory import Trajectory
+from .trajectory import LazyColumns, Trajectory
+from .vectorized import evaluate_rows, fast_call
 
-__all__ = ["System", "system_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
+__all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
 
 _IDA_REASONS = {
@@ -90,47 +92,6 @@ class IntegrationFailure(RuntimeError):
     def __init__(self, message: str, t: float, text: str, why: str) -> None:
         super().__init__(message)
         self.t, self.text, self.why = t, text, why
-
-
-def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
-              want_stats: bool = False) -> dict:
-    """Call a CasADi Function writing straight into NumPy arrays (``Function.buffer``).
-
-    Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's column-major
-    ``(size, points)``; ``outs`` maps output names to such shapes.
-
-    >>> import casadi as ca, numpy as np
-    >>> x = ca.SX.sym("x", 2)
-    >>> F = ca.Function("f", [x], [2 * x], ["x"], ["y"])
-    >>> fast_call(F, {"x": np.array([1.0, 2.0])}, {"y": (2,)})["y"].tolist()
-    [2.0, 4.0]
-    """
-    buf, ev = F.buffer()
-    keep = []
-    for i, name in enumerate(F.name_in()):
-        a = args.get(name)
-        a = np.zeros(F.nnz_in(i)) if a is None else np.ascontiguousarray(a, dtype=float).ravel()
-        if a.size != F.nnz_in(i):
-            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
-        keep.append(a)
-        buf.set_arg(i, memoryview(a))
-    res = {}
-    for i, name in enumerate(F.name_out()):
-        shape = outs.get(name)
-        r = np.zeros(shape if shape is not None else F.nnz_out(i))
-        if r.size != F.nnz_out(i):
-            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
-        keep.append(r)
-        buf.set_res(i, memoryview(r))
-        if shape is not None:
-            res[name] = r
-    ev()
-    if want_stats:
-        try:
-            res["_stats"] = buf.stats()
-        except Exception:  # noqa: BLE001
-            res["_stats"] = {}
-    return res
 
 
 def to_scipy(M: ca.DM) -> sp.csc_matrix:
@@ -203,6 +164,7 @@ class Evaluator:
                 rest_names.append(n)
                 rest.append(e)
         self.rest_names = rest_names
+        self._r = r
         inv = r.invariants if r.invariants.numel() else ca.SX(0, 1)
         allv = ca.vertcat(*rest) if rest else ca.SX(0, 1)
         self.nv = int(allv.numel())
@@ -225,13 +187,23 @@ class Evaluator:
         n = t.size
         if n == 0 or self.ninv == 0:
             return np.zeros((n, self.ninv))
-        m = _padded(n)
-        fm = self._mapped(self.inv_fun, m)
-        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
-        ni = fm.name_in()
-        out = fast_call(fm, {ni[0]: _pad(t, m), ni[1]: _pad(X, m), ni[2]: _pad(Z, m),
-                             ni[3]: _pad(U, m), ni[4]: P}, {fm.name_out(0): (m, self.ninv)})
-        return out[fm.name_out(0)][:n]
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+        return evaluate_rows(self.inv_fun, [t, X, Z, U, P], self._maps.setdefault("inv", {}))[0]
+
+    def values(self, t, X, Z, U, p):
+        """``({name: (N,)} of the variables that are not plain elements, None)``: one mapped
+        call of the rest (the invariants are :meth:`invariants`)."""
+        n = t.size
+        if n == 0 or not self.nv:
+            return {k: np.zeros(n) for k in self.rest_names}, None
+        if "rest" not in self.__dict__:
+            r = self._r
+            allv = ca.vertcat(*[ca.SX(r.variables[k]) if k in r.variables else
+                                r.u[r.u_names.index(k)] for k in self.rest_names])
+            self.rest = ca.Function("evaluate_rest", [r.t, r.x, r.z, r.u, r.p], [allv])
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
+        V = evaluate_rows(self.rest, [t, X, Z, U, P], self._maps.setdefault("rest", {}))[0].T
+        return {k: np.ascontiguousarray(V[i]) for i, k in enumerate(self.rest_names)}, None
 
     def __call__(self, t, X, Z, U, p):
         """t (N,), X (N, nx), Z (N, nz), U (N, nu) -> (values dict, invariants (N, ninv))."""
@@ -278,10 +250,27 @@ def _pad(A, m: int) -> np.ndarray:
 
 
 def make_trajectory(r, tg, X, Z, U, pv, stats, evaluator: Evaluator | None = None) -> Trajectory:
-    """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``."""
+    """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``: the values that
+    are elements of ``x``, ``z``, ``u`` at once, the other variables and the invariants when
+    first read (:class:`~daekit.simulate.trajectory.LazyColumns`, one mapped CasADi call)."""
     ev = evaluator or Evaluator(r)
-    vals, inv = ev(np.asarray(tg, dtype=float), X, Z, U, pv)
-    return Trajectory(tg, vals, inv, list(r.invariant_names), stats)
+    tg = np.asarray(tg, dtype=float).ravel()
+    n = tg.size
+    X = np.array(X, dtype=float, copy=True).reshape(n, r.nx)
+    Z = np.array(Z, dtype=float, copy=True).reshape(n, r.nz)
+    U = np.array(U, dtype=float, copy=True).reshape(n, r.nu)
+    pv = np.asarray(pv, dtype=float).ravel()
+    arrays = {"x": X, "z": Z, "u": U}
+    ready = {k: arrays[a][:, i] for k, (a, i) in ev.direct.items()}
+    ready.update({k: np.full(n, v) for k, v in ev.const.items()})
+
+    def rest() -> dict:
+        vals, _ = ev.values(tg, X, Z, U, pv)
+        return vals
+
+    cols = LazyColumns(ready, ev.rest_names, rest, order=ev.names)
+    inv = (lambda: ev.invariants(tg, X, Z, U, pv)) if ev.ninv else None
+    return Trajectory(tg, cols, inv, list(r.invariant_names), stats)
 
 
 def reraise_input_error(system: System) -> None:
@@ -298,6 +287,28 @@ def _fingerprint(r) -> tuple:
     return (id(r.ode), id(r.alg), id(r.invariants), id(r.variables), id(r.x), id(r.z))
 
 
+def signal_for(r, inputs: Mapping | None) -> InputSignal:
+    """The :class:`~daekit.inputs.InputSignal` of ``r`` for ``inputs``; without inputs (all
+    controls zero, the common case) built once and kept on ``r``.
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
+    >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -x, ca.SX(0, 1),
+    ...     ca.SX(0, 1), [], ["x"], [], [], [], np.zeros(0), {"x": x})
+    >>> signal_for(r, None) is signal_for(r, {})
+    True
+    """
+    if inputs:
+        return InputSignal(r, inputs)
+    def build(r) -> InputSignal:
+        sig = InputSignal(r, None)
+        sig.default = True  # no inputs given: the key of system_for needs no serialization
+        return sig
+
+    return r.derived("simulate.default_signal", build)
+
+
 def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> System:
     """The :class:`System` of ``r`` for these inputs and settings, built once and kept on ``r``
     (no global cache: it is freed with ``r``). Callable inputs are never cached."""
@@ -306,7 +317,8 @@ def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) 
     try:
         # the input by its serialized function, not its printed form: printing rounds
         # constants to ~6 digits, and two different inputs must not share an integrator
-        u_key = ca.Function("u_key", [r.t], [sig.expr]).serialize()
+        u_key = "none" if getattr(sig, "default", False) else \
+            ca.Function("u_key", [r.t], [sig.expr]).serialize()
         key = (_fingerprint(r), u_key, float(rtol), float(atol), repr(sorted(options.items())))
     except Exception:  # noqa: BLE001 - unprintable option: no caching
         return System(r, sig, rtol, atol, options)
@@ -382,6 +394,26 @@ class System:
         z = np.asarray(z, dtype=float).ravel().copy()
         if self.nz == 0:
             return z
+        me = threading.get_ident()
+        if getattr(self, "_alg_res", None) is None or self._alg_res[5] != me:
+            r = self.r
+            alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+            F = ca.Function("alg_res", [r.t, r.x, r.z, r.u, r.p], [alg])
+            # one buffer bound once to these arrays: a residual check costs microseconds
+            ins = [np.zeros(F.nnz_in(i)) for i in range(5)]
+            out = np.zeros(F.nnz_out(0))
+            buf, ev = F.buffer()
+            for i, a in enumerate(ins):
+                buf.set_arg(i, memoryview(a))
+            buf.set_res(0, memoryview(out))
+            self._alg_res = (F, buf, ev, ins, out, me)  # (a buffer per thread)
+        _, _, ev, ins, out, _ = self._alg_res
+        for a, v in zip(ins, (t, x, z, u, p), strict=True):
+            a[:] = np.ravel(v)
+        ev()
+        g = out.copy()
+        if np.all(np.isfinite(g)) and np.max(np.abs(g)) < 1e-14 * (1 + np.max(np.abs(z))):
+            return z  # already consistent (the common case: one cheap evaluation)
         for _ in range(iters):
             g, Jz = self.alg_fun(t, x, z, u, p)
             g = np.asarray(g, dtype=float).ravel()
@@ -412,26 +444,16 @@ class System:
             self._alg_dense = ca.Function("alg_dense", [r.t, r.x, r.z, r.u, r.p],
                                           [alg, ca.densify(ca.jacobian(alg, r.z))])
             self._alg_maps = {}
-        m = _padded(n)
-        if m not in self._alg_maps:
-            if len(self._alg_maps) > 8:
-                self._alg_maps.clear()
-            self._alg_maps[m] = self._alg_dense.map(m)
-        F = self._alg_maps[m]
-        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), m, axis=0)
-        ni, no = F.name_in(), F.name_out()
+        P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
         nz = self.nz
-        T, X, U = _pad(np.asarray(T, float).ravel(), m), _pad(X, m), _pad(U, m)
-        Z = _pad(Z, m)
+        T, X, U = np.asarray(T, float).ravel(), np.asarray(X, float), np.asarray(U, float)
         for _ in range(iters):
-            out = fast_call(F, {ni[0]: T, ni[1]: X, ni[2]: Z, ni[3]: U, ni[4]: P},
-                            {no[0]: (m, nz), no[1]: (m, nz, nz)})
-            g = out[no[0]]
+            g, Jnz = evaluate_rows(self._alg_dense, [T, X, Z, U, P], self._alg_maps)
             if not np.all(np.isfinite(g)):
                 break
             if np.max(np.abs(g)) < 1e-15 * (1 + np.max(np.abs(Z))):
                 break
-            J = np.transpose(out[no[1]], (0, 2, 1))  # column-major blocks
+            J = np.transpose(Jnz.reshape(n, nz, nz), (0, 2, 1))  # column-major blocks
             try:
                 dz = np.linalg.solve(J, -g[..., None])[..., 0]
             except np.linalg.LinAlgError:
@@ -439,7 +461,7 @@ class System:
             if not np.all(np.isfinite(dz)):
                 break
             Z += dz
-        return Z[:n]
+        return Z
 
     def step0(self, x0, xdot0, span: float) -> float:
         """The first step: IDAS's own rule ``min(1e-3 span, 0.5 / ||xdot0||_wrms)`` with ``span``

@@ -17,7 +17,7 @@ Example
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, MutableMapping
 
 import numpy as np
 
@@ -26,7 +26,72 @@ from ..model import NameNotFoundError, expand_name, select_name
 from ..wording import count
 from .storage import read_trajectory, save_trajectory
 
-__all__ = ["Trajectory", "NameNotFoundError", "expand_name", "load_trajectory"]
+__all__ = ["Trajectory", "LazyColumns", "NameNotFoundError", "expand_name", "load_trajectory"]
+
+
+class LazyColumns(MutableMapping):
+    """A trajectory's columns by name where some are computed only when first read (all of
+    those together, by one call of ``compute``): a simulation hands over its states at once
+    and evaluates the other variables of the model only if someone reads them.
+
+    >>> import numpy as np
+    >>> calls = []
+    >>> cols = LazyColumns({"x": np.ones(2)}, ["y"], lambda: calls.append(1) or {"y": np.zeros(2)})
+    >>> list(cols), calls
+    (['x', 'y'], [])
+    >>> cols["y"].tolist(), calls
+    ([0.0, 0.0], [1])
+    """
+
+    def __init__(self, ready: Mapping[str, np.ndarray], pending: Iterable[str],
+                 compute: Callable[[], Mapping[str, np.ndarray]], order: Iterable[str] | None = None
+                 ) -> None:
+        self._d = dict(ready)
+        self._pending = set(pending)
+        self._compute: Callable | None = compute if self._pending else None
+        self._order = list(order) if order is not None else [*self._d, *pending]
+
+    def _fill(self) -> None:
+        fn, self._compute = self._compute, None
+        if fn is not None:
+            for k, v in fn().items():
+                if k in self._pending:
+                    self._d[k] = v
+        self._pending.clear()
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        try:
+            return self._d[key]
+        except KeyError:
+            if key in self._pending:
+                self._fill()
+                return self._d[key]
+            raise
+
+    def __contains__(self, key) -> bool:
+        return key in self._d or key in self._pending
+
+    def __iter__(self):
+        return iter(self._order)
+
+    def __len__(self) -> int:
+        return len(self._order)
+
+    def __setitem__(self, key: str, value) -> None:
+        if key not in self:
+            self._order.append(key)
+        self._pending.discard(key)
+        self._d[key] = value
+
+    def __delitem__(self, key: str) -> None:
+        if key not in self:
+            raise KeyError(key)
+        self._pending.discard(key)
+        self._d.pop(key, None)
+        self._order.remove(key)
+
+    def __reduce__(self):  # pickled (and deep-copied) as the plain dict of all columns
+        return (dict, (dict(self.items()),))
 
 
 def _derivative_name(element: str) -> str:
@@ -93,20 +158,52 @@ class Trajectory:
         self.t = np.asarray(t, dtype=float).ravel()
         self.events: list[tuple[float, str]] = [(float(te), str(n)) for te, n in (events or [])]
         n = self.t.size
-        self.values: dict[str, np.ndarray] = {}
-        for k, v in values.items():
-            arr = np.asarray(v, dtype=float).ravel()
-            if arr.size != n:
-                raise ModelError(
-                    f"Trajectory: {k!r} has {arr.size} values but there are {n} time points"
-                )
-            self.values[k] = arr
+        self.values: MutableMapping[str, np.ndarray]
+        if isinstance(values, LazyColumns):
+            self.values = values  # made by a simulation: sizes known to match
+        else:
+            self.values = {}
+            for k, v in values.items():
+                arr = np.asarray(v, dtype=float).ravel()
+                if arr.size != n:
+                    raise ModelError(
+                        f"Trajectory: {k!r} has {arr.size} values but there are {n} time points"
+                    )
+                self.values[k] = arr
         self.invariant_names = list(invariant_names or [])
         if invariants is None:
             invariants = np.zeros((n, len(self.invariant_names)))
-        inv = np.asarray(invariants, dtype=float).reshape(n, -1) if n else np.zeros((0, 0))
-        self.invariants = inv
+        if callable(invariants):  # evaluated when first read (see LazyColumns)
+            self._invariants = None
+            self._invariants_fn = invariants
+        else:
+            self.invariants = invariants
         self.stats = dict(stats or {})
+
+    @property
+    def invariants(self) -> np.ndarray:
+        """The invariants along the solution, ``(N, n_inv)``."""
+        inv = self.__dict__.get("_invariants")
+        if inv is None:
+            fn = self.__dict__.pop("_invariants_fn", None)
+            inv = fn() if fn is not None else np.zeros((self.t.size, len(self.invariant_names)))
+            self.invariants = inv
+            inv = self._invariants
+        return inv
+
+    @invariants.setter
+    def invariants(self, value) -> None:
+        n = self.t.size
+        self._invariants = np.asarray(value, dtype=float).reshape(n, -1) if n else \
+            np.zeros((0, 0))
+        self.__dict__.pop("_invariants_fn", None)
+
+    def __getstate__(self) -> dict:  # pickled with every value computed
+        state = dict(self.__dict__)
+        state["_invariants"] = self.invariants
+        state.pop("_invariants_fn", None)
+        state["values"] = dict(self.values.items())
+        return state
 
     # ------------------------------------------------------------------ access
     def __getitem__(self, name: str) -> np.ndarray:

@@ -895,7 +895,7 @@ def _qp_min_norm(A, h, H, g) -> np.ndarray:
         # rounding residue, which a relative cutoff would invert into huge steps); negative
         # curvature (the constraints' curvature times multipliers of either sign) is no
         # step direction either
-        keep = lam > 1e-12 * max(1.0, float(np.abs(H).max()))
+        keep = lam > 1e-12 * float(np.abs(H).max())
         Qk = Q[:, keep]
         y = Qk @ ((Qk.T @ -(N.T @ (H @ dp + g))) / lam[keep])
         return dp + N @ y

@@ -1076,7 +1076,12 @@ def _gn_step_sparse(hv, J, gfun, wv, gval, nx=None, C=None, refine: int = 10):
     K = sp.bmat([[Wx, Jc.T], [Jc, sp.csc_matrix((m, m))]], format="csc")
     b = np.concatenate([b1, -hv])
     nb = max(np.linalg.norm(b), 1e-300)
+    # more constraint rows than unknowns (fixed values the consistency conditions imply, as
+    # when all of a chain's q and v are fixed): the KKT matrix is singular (rank <= 2n < n + m),
+    # the unregularized factorization would only fail at the cost of a full LU
     try:
+        if m > n:
+            raise RuntimeError("redundant rows")
         lu = sp.linalg.splu(K)  # COLAMD + partial pivoting: little fill on KKT matrices
         sol = lu.solve(b)
         if np.all(np.isfinite(sol)):

@@ -1,7 +1,7 @@
 """The fast paths of the per-call work (issue 14): each gives what the plain form gives.
 
 - equilibrate's exponent formulations (dense and sparse) against the plain one (products of
-  the scaled matrix in every sweep): the same powers of two, exactly;
+  the scaled matrix in every sweep, at the end of this file): the same powers of two, exactly;
 - the union-find of small models' connected parts against SciPy's connected_components;
 - CasADi functions called through their raw buffers (FastFunction) against Function calls,
   also from two threads at once;
@@ -45,7 +45,7 @@ def test_equilibrate_dense_is_the_plain_iteration():
     for trial in range(400):
         A = _random_matrix(rng, trial % 5, int(rng.integers(1, 30)), int(rng.integers(1, 30)))
         dr, dc = numerics.equilibrate(A)
-        rr, rc = numerics._equilibrate_reference(A)
+        rr, rc = equilibrate_reference(A)
         np.testing.assert_array_equal(dr, rr)
         np.testing.assert_array_equal(dc, rc)
 
@@ -61,7 +61,7 @@ def test_equilibrate_sparse_is_the_plain_iteration():
         if trial % 3 == 0:
             A.data[rng.random(A.nnz) < 0.05] = 1e-25
         dr, dc = numerics.equilibrate(A)
-        rr, rc = numerics._equilibrate_reference(A)
+        rr, rc = equilibrate_reference(A)
         np.testing.assert_array_equal(dr, rr)
         np.testing.assert_array_equal(dc, rc)
         B = abs(sp.diags(dr) @ A @ sp.diags(dc)).tocsr()
@@ -124,3 +124,81 @@ def test_derivative_array_top_level_first_is_level_by_level(top):
         assert out == [None, None]
     else:
         assert [(o.index, o.dof) for o in out] == [(3, 2), (3, 2)]
+
+
+# --------------------------------------------------------------------------- the plain form
+# equilibrate as first written (products of the scaled matrix in every Ruiz sweep, SciPy's
+# sparse products, Curtis--Reid's normal equations by SuperLU): the reference for the
+# exponent formulations in daekit.numerics.
+
+
+def _pow2_inv_sqrt(mx):
+    mx = np.asarray(mx, dtype=float).ravel()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(mx > 0, -np.round(0.5 * np.log2(np.where(mx > 0, mx, 1.0))), 0.0)
+    return np.exp2(e)
+
+
+def _curtis_reid(B):
+    C = sp.coo_matrix(B)
+    keep = C.data > 0
+    rows, cols, vals = C.row[keep], C.col[keep], np.log2(C.data[keep])
+    m, n = C.shape
+    if rows.size == 0:
+        return np.zeros(m), np.zeros(n)
+    P = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=(m, n))
+    rc = np.bincount(rows, minlength=m).astype(float)
+    cc = np.bincount(cols, minlength=n).astype(float)
+    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+    b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
+    sol = sp.linalg.spsolve(K, b)
+    return sol[:m], sol[m:]
+
+
+def _ruiz(B, dr, dc, issparse):
+    for _ in range(numerics.RUIZ_ITERATIONS):
+        if issparse:
+            S = sp.diags(dr) @ B @ sp.diags(dc)
+            rmax = S.max(axis=1).toarray().ravel()
+            cmax = S.max(axis=0).toarray().ravel()
+        else:
+            S = B * dr[:, None] * dc[None, :]
+            rmax, cmax = S.max(axis=1), S.max(axis=0)
+        ok_r = (rmax == 0) | ((rmax >= 0.5) & (rmax <= 2.0))
+        ok_c = (cmax == 0) | ((cmax >= 0.5) & (cmax <= 2.0))
+        if ok_r.all() and ok_c.all():
+            break
+        dr = dr * _pow2_inv_sqrt(rmax)
+        dc = dc * _pow2_inv_sqrt(cmax)
+    return dr, dc
+
+
+def equilibrate_reference(A):
+    issparse = sp.issparse(A)
+    if issparse:
+        B = abs(sp.csr_matrix(A, dtype=float))
+        B.data[~np.isfinite(B.data)] = 0.0
+        B.eliminate_zeros()
+    else:
+        B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
+        B = np.where(np.isfinite(B), B, 0.0)
+    m, n = B.shape
+    if m == 0 or n == 0:
+        return np.ones(m), np.ones(n)
+    if issparse:
+        rmax0 = B.max(axis=1).toarray().ravel()
+        B = B.tocoo()
+        sig = B.data > numerics.ROW_NOISE * rmax0[B.row]
+        B = sp.csr_matrix((B.data[sig], (B.row[sig], B.col[sig])), shape=(m, n))
+    else:
+        B = np.where(B > numerics.ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
+    dr, dc = _ruiz(B, np.ones(m), np.ones(n), issparse)
+    S = (sp.diags(dr) @ B @ sp.diags(dc)).tocsr() if issparse else B * dr[:, None] * dc[None, :]
+    if issparse:
+        S.data[S.data <= numerics.NOISE] = 0.0
+        S.eliminate_zeros()
+        keep = sp.diags(1.0 / dr) @ S @ sp.diags(1.0 / dc)
+    else:
+        keep = np.where(S > numerics.NOISE, B, 0.0)
+    lr, lc = _curtis_reid(keep)
+    return _ruiz(B, np.exp2(np.round(lr)), np.exp2(np.round(lc)), issparse)

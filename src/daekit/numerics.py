@@ -66,28 +66,6 @@ DENSE_EQUILIBRATE = 40000
 DENSE_CR = 150
 
 
-def _pow2_inv_sqrt(mx: np.ndarray) -> np.ndarray:
-    """``2**-round(log2(mx) / 2)`` elementwise (1 where ``mx`` is 0): the power of two
-    nearest to ``1 / sqrt(mx)``; exactly 1 when ``mx`` lies in ``[1/2, 2]``."""
-    mx = np.asarray(mx, dtype=float).ravel()
-    e = np.log2(mx, out=np.zeros(mx.shape), where=mx > 0)
-    return np.exp2(-np.round(0.5 * e))
-
-
-def _curtis_reid(B) -> tuple[np.ndarray, np.ndarray]:
-    """Log2 row and column factors minimizing ``sum (log2|a_ij| + r_i + c_j)^2`` over the
-    nonzeros (Curtis & Reid, "On the automatic scaling of matrices for Gaussian
-    elimination", J. Inst. Maths Applics 10, 1972): a linear least-squares problem whose
-    scaled matrix does not depend on any prior diagonal scaling of ``B`` at all. Its normal
-    equations ``[[diag(row counts), P], [P^T, diag(column counts)]] [r; c] = -[...]`` (``P``
-    the pattern) are singular along ``(1, -1)`` per connected component: a tiny ridge picks
-    the least-norm solution without changing the scaled matrix (see :func:`_curtis_reid_log`)."""
-    C = sp.coo_matrix(B)
-    keep = C.data > 0
-    return _curtis_reid_log(C.shape[0], C.shape[1], C.row[keep], C.col[keep],
-                            np.log2(C.data[keep]))
-
-
 def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     """Row and column factors ``(dr, dc)``, powers of two, such that ``diag(dr) A diag(dc)``
     is well scaled whatever the units: first Curtis--Reid's scaling (least squares on the
@@ -111,46 +89,6 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     if not issparse:
         return _equilibrate_dense(A)
     return _equilibrate_sparse(A)
-
-
-def _equilibrate_reference(A) -> tuple[np.ndarray, np.ndarray]:
-    """The plain formulation of :func:`equilibrate` (products of the scaled matrix formed in
-    each sweep); kept as the reference the exponent formulations are checked against."""
-    issparse = sp.issparse(A)
-    if issparse:
-        B = abs(sp.csr_matrix(A, dtype=float))
-        B.data[~np.isfinite(B.data)] = 0.0
-        B.eliminate_zeros()
-    else:
-        B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
-        B = np.where(np.isfinite(B), B, 0.0)
-    m, n = B.shape
-    if m == 0 or n == 0:
-        return np.ones(m), np.ones(n)
-    # entries below ROW_NOISE of their row's largest are rounding residue of exact zeros
-    # (2.5e-31 where a value is 0 up to rounding): no units within 1e-6..1e6 make them
-    # significant, and a column of them only must not be scaled up to unit size
-    if issparse:
-        rmax0 = B.max(axis=1).toarray().ravel()
-        B = B.tocoo()
-        sig = B.data > ROW_NOISE * rmax0[B.row]
-        B = sp.csr_matrix((B.data[sig], (B.row[sig], B.col[sig])), shape=(m, n))
-    else:
-        B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
-    dr, dc = _ruiz(B, np.ones(m), np.ones(n), issparse)
-    # entries below NOISE of both their row's and column's largest (after Ruiz) are rounding
-    # residue (an exact zero at a consistent point computed as 1e-17): they would dominate a
-    # least-squares fit of the logarithms, so Curtis--Reid ignores them
-    S = (sp.diags(dr) @ B @ sp.diags(dc)).tocsr() if issparse else B * dr[:, None] * dc[None, :]
-    if issparse:
-        S.data[S.data <= NOISE] = 0.0
-        S.eliminate_zeros()
-        keep = sp.diags(1.0 / dr) @ S @ sp.diags(1.0 / dc)
-    else:
-        keep = np.where(S > NOISE, B, 0.0)
-    lr, lc = _curtis_reid(keep)
-    dr, dc = np.exp2(np.round(lr)), np.exp2(np.round(lc))
-    return _ruiz(B, dr, dc, issparse)
 
 
 def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
@@ -255,8 +193,11 @@ _LOG2_NOISE = float(np.log2(NOISE))
 
 
 def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
-    """Ruiz's iteration (see :func:`_ruiz`) on the exponents: ``L`` the log2 magnitudes
-    (``-inf`` for zeros), ``er``, ``ec`` the exponents of the row and column factors."""
+    """Ruiz's iteration in the max norm on the exponents: ``L`` the log2 magnitudes (``-inf``
+    for zeros), ``er``, ``ec`` the exponents of the row and column factors. Each sweep
+    multiplies every row and column by the power of two nearest to ``1 / sqrt(its largest
+    scaled entry)``, until every nonzero row's and column's largest entry lies in
+    ``[1/2, 2]`` (then every update is 1)."""
     m = L.shape[0]
     for _ in range(RUIZ_ITERATIONS):
         S = L + er[:, None] + ec[None, :]
@@ -272,7 +213,14 @@ def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_curtis_reid` from the nonzeros' positions and log2 magnitudes."""
+    """Log2 row and column factors minimizing ``sum (log2|a_ij| + r_i + c_j)^2`` over the
+    nonzeros at ``(rows, cols)`` with log2 magnitudes ``vals`` (Curtis & Reid, "On the
+    automatic scaling of matrices for Gaussian elimination", J. Inst. Maths Applics 10, 1972):
+    a linear least-squares problem whose scaled matrix does not depend on any prior diagonal
+    scaling at all. Its normal equations ``[[diag(row counts), P], [P^T, diag(column counts)]]
+    [r; c] = -[...]`` (``P`` the pattern) are singular along ``(1, -1)`` per connected
+    component: a tiny ridge picks the least-norm solution without changing the scaled matrix.
+    Dense up to ``DENSE_CR`` rows and columns, SuperLU beyond."""
     k = rows.size
     if k == 0:
         return np.zeros(m), np.zeros(n)
@@ -294,25 +242,6 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
     sol = sp.linalg.spsolve(K, b)
     return sol[:m], sol[m:]
-
-
-def _ruiz(B, dr, dc, issparse) -> tuple[np.ndarray, np.ndarray]:
-    """Ruiz's iteration in the max norm from the factors ``dr``, ``dc``: until every nonzero
-    row's and column's largest entry lies in ``[1/2, 2]`` (then every factor update is 1)."""
-    for _ in range(RUIZ_ITERATIONS):
-        if issparse:
-            S = sp.diags(dr) @ B @ sp.diags(dc)
-            rmax = S.max(axis=1).toarray().ravel()
-            cmax = S.max(axis=0).toarray().ravel()
-        else:
-            S = B * dr[:, None] * dc[None, :]
-            rmax, cmax = S.max(axis=1), S.max(axis=0)
-        fr, fc = _pow2_inv_sqrt(rmax), _pow2_inv_sqrt(cmax)
-        if (fr == 1.0).all() and (fc == 1.0).all():
-            break
-        dr = dr * fr
-        dc = dc * fc
-    return dr, dc
 
 
 def equilibrated(A):

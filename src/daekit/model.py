@@ -849,6 +849,20 @@ class Model:
             cache[order] = (J, cols)
         return cache[order]
 
+    def memo(self, key: str, make):
+        """``make()``, computed once and kept until the model changes (for values built from
+        the model that several steps need, e.g. the expansion by Pryce's offsets).
+
+        >>> import daekit as dk
+        >>> m = dk.examples.l3()
+        >>> m.memo("n", lambda: m.n_equations) == m.memo("n", lambda: -1)
+        True
+        """
+        memos = self._cache.setdefault("memo", {})
+        if key not in memos:
+            memos[key] = make()
+        return memos[key]
+
     def sigma(self):
         """Pryce's Sigma-method on :meth:`incidence` (:func:`daekit.structure.sigma_method`),
         computed once until the model changes (analysis and reduction both need it).

@@ -141,8 +141,17 @@ def expand(model: Model, validate: bool = True) -> Expansion:
     """Differentiate every equation ``F_i`` of ``model`` ``c_i`` times (Pryce's offsets).
 
     One ``casadi.jtimes`` call per differentiation level, over all equations of that level.
+    Made once per model until it changes (:meth:`daekit.Model.memo`: analysis and reduction
+    share it; consumers do not modify it).
     """
-    transversal, c, d = sigma_offsets(model, validate)
+    model = Model.require(model, "reduce_index")
+    if validate:
+        model.validate()  # StructuralError naming the equations at fault
+    return model.memo("expansion", lambda: _expand(model))
+
+
+def _expand(model: Model) -> Expansion:
+    transversal, c, d = sigma_offsets(model, validate=False)
     unknowns = model.unknowns
     n = len(unknowns)
     F = model.residual

@@ -781,7 +781,12 @@ def initialize(
                 break  # diverging: analyse the best point reached
             wv, hv, J = wn, hn, Jn
             fv = objective(wv)
-            if small(hv, wv, J, tol) and step <= 1e-9:
+            # converged: the last step is negligible against every value, and every residual
+            # is negligible against the terms of its row, or (rows whose terms are rounding
+            # residue or that no free unknown moves: all values of a chain fixed) the
+            # equilibrated residual is below the stopping level
+            if step <= 1e-9 and (small(hv, wv, J, tol)
+                                 or np.linalg.norm(dr * hv) <= 1e-3 * stop):
                 return wv, hv, J, True, it
             history.append(float(np.linalg.norm(dr * hv)))
             if len(history) > 10 and history[-1] > 0.999 * history[-10] and history[-1] > 1e-6:

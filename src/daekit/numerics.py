@@ -150,17 +150,8 @@ def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _ruiz_log_sparse(L, seg: _Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_ruiz_log` over the nonzeros of a sparse matrix."""
-    m = seg.m
-    for _ in range(RUIZ_ITERATIONS):
-        S = L + er[seg.rows] + ec[seg.cols]
-        mx = seg.maxima(S)
-        f = -np.round(0.5 * mx)
-        f[~np.isfinite(f)] = 0.0
-        if not f.any():
-            break
-        er = er + f[:m]
-        ec = ec + f[m:]
-    return er, ec
+    return _ruiz_sweeps(lambda er, ec: seg.maxima(L + er[seg.rows] + ec[seg.cols]),
+                        seg.m, er, ec)
 
 
 def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
@@ -198,12 +189,19 @@ def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
     multiplies every row and column by the power of two nearest to ``1 / sqrt(its largest
     scaled entry)``, until every nonzero row's and column's largest entry lies in
     ``[1/2, 2]`` (then every update is 1)."""
-    m = L.shape[0]
-    for _ in range(RUIZ_ITERATIONS):
+    def maxima(er, ec):
         S = L + er[:, None] + ec[None, :]
-        mx = np.concatenate([S.max(axis=1), S.max(axis=0)])
+        return np.concatenate([S.max(axis=1), S.max(axis=0)])
+
+    return _ruiz_sweeps(maxima, L.shape[0], er, ec)
+
+
+def _ruiz_sweeps(maxima, m: int, er, ec) -> tuple[np.ndarray, np.ndarray]:
+    """The sweeps of :func:`_ruiz_log`, dense or sparse: ``maxima(er, ec)`` gives the log2
+    of every row's and then every column's largest scaled entry."""
+    for _ in range(RUIZ_ITERATIONS):
         # the factor 2**-round(log2(max) / 2); zero rows and columns (-inf) keep factor 1
-        f = -np.round(0.5 * mx)
+        f = -np.round(0.5 * maxima(er, ec))
         f[~np.isfinite(f)] = 0.0
         if not f.any():
             break

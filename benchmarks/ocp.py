@@ -36,7 +36,11 @@ import casadi as ca
 import numpy as np
 
 import daekit as dk
-from daekit.examples.ocp_examples import betts_pendulum_ocp, pendulum_with_tangential_force
+from daekit.examples.ocp_examples import (
+    betts_pendulum_ocp,
+    cartpole_ocp,
+    pendulum_with_tangential_force,
+)
 from daekit.ocp import OCP
 from daekit.ocp.boundary import analyze
 from daekit.ocp.collocation import radau_coefficients
@@ -61,19 +65,7 @@ betts = betts_pendulum_ocp
 
 
 def cartpole():
-    M, mp, L, g = 1.0, 0.3, 0.5, 9.81
-    m = dk.Model("cartpole")
-    s, p = m.state("s"), m.state("p", 2)
-    lam, F = m.algebraic("lam"), m.control("F")
-    r = ca.vertcat(p[0] - s, p[1])
-    m.equation(M * m.der(s, 2) - (F + 2 * lam * r[0]), name="cart")
-    m.equation(mp * m.der(p, 2) - (-mp * ca.vertcat(0, g) - 2 * lam * r), name="tip")
-    m.equation(ca.dot(r, r) - L**2, name="rod")
-    ocp = OCP(m, t_final=2.0, intervals=50, degree=3)
-    ocp.minimize(integral=F**2)
-    ocp.initial({"s": 0, "p": [0, -L], "der(s)": 0, "der(p)": [0, 0]})
-    ocp.final({"s": 0, "p": [0, L], "der(s)": 0, "der(p)": [0, 0]})
-    return ocp
+    return cartpole_ocp(final_all=True)
 
 
 # ---------------------------------------------------------------------------- hand-written Opti

@@ -9,10 +9,12 @@ import pytest
 import daekit as dk
 from daekit.errors import OCPError
 from daekit.examples.ocp_examples import (
+    CARTPOLE,
     betts_pendulum_ocp,
     pendulum_with_tangential_force,
     swing_optimum_minimal_coordinates,
 )
+from daekit.examples.ocp_examples import cartpole_ocp as cartpole_ocp_example
 from daekit.ocp import OCP, Free
 from daekit.ocp.collocation import radau_coefficients
 from daekit.ocp.consistency import independent_rows
@@ -838,28 +840,11 @@ def test_nan_boundary_value_raises_at_once():
         ocp.initial({"s": float("nan")})
 
 
-CP = {"M": 1.0, "m": 0.3, "L": 0.5, "g": 9.81, "T": 2.0, "N": 50}
+CP = CARTPOLE
 
 
 def cartpole_ocp(full: bool):
-    """Cart (position s) and pole tip p in Cartesian coordinates, one rod, force F on the cart,
-    from hanging at rest to upright at rest, min int F^2."""
-    M, mp, L, g = CP["M"], CP["m"], CP["L"], CP["g"]
-    m = dk.Model("cartpole")
-    s, p = m.state("s"), m.state("p", 2)
-    lam, F = m.algebraic("lam"), m.control("F")
-    r = ca.vertcat(p[0] - s, p[1])
-    m.equation(M * m.der(s, 2) - (F + 2 * lam * r[0]), name="cart")
-    m.equation(mp * m.der(p, 2) - (-mp * ca.vertcat(0, g) - 2 * lam * r), name="tip")
-    m.equation(ca.dot(r, r) - L**2, name="rod")
-    ocp = OCP(m, t_final=CP["T"], intervals=CP["N"], degree=3)
-    ocp.minimize(integral=F**2)
-    ocp.initial({"s": 0, "p": [0, -L], "der(s)": 0, "der(p)": [0, 0]})
-    if full:
-        ocp.final({"s": 0, "p": [0, L], "der(s)": 0, "der(p)": [0, 0]})
-    else:
-        ocp.final({"s": 0, "p[1]": L, "der(s)": 0, "der(p)": [0, 0]})
-    return ocp
+    return cartpole_ocp_example(final_all=full)
 
 
 def cartpole_minimal_coordinates() -> float:

@@ -76,10 +76,12 @@ def c_output(enabled: bool = True):
         os.dup2(saved[1], 2)
         for fd in saved:
             os.close(fd)
-        tmp.seek(0)
-        out.text = tmp.read().decode(errors="replace") + buf.getvalue()
-        tmp.seek(0)
-        tmp.truncate()
+        if os.fstat(tmp.fileno()).st_size:  # (nothing written, the common case: no I/O)
+            tmp.seek(0)
+            out.text = tmp.read().decode(errors="replace")
+            tmp.seek(0)
+            tmp.truncate()
+        out.text += buf.getvalue()
         _FREE.append(tmp)
 
 

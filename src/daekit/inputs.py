@@ -205,13 +205,15 @@ class InputSignal:
         u0 = self.__dict__.get("_u0")
         if u0 is None:
             u0 = self._u0 = np.asarray(ca.DM(self.expr), dtype=float).ravel()
+            self._u0_finite = bool(np.isfinite(u0).all())  # (checked once, not per call)
         return u0
 
     def value(self, t: float) -> np.ndarray:
         """The numeric input vector at time ``t``; a NaN raises :class:`InputError` naming it."""
         u0 = self._constant_value()
         if u0 is not None:
-            self.check_finite(u0, t)
+            if not self._u0_finite:
+                self.check_finite(u0, t)
             return u0.copy()
         cb = self.callable_values(t)
         u = np.asarray(self._fexpr(float(t), cb), dtype=float).ravel()
@@ -226,7 +228,8 @@ class InputSignal:
         u0 = self._constant_value()
         if u0 is not None:
             # inputs that do not change (the default: zero): one evaluation
-            self.check_finite(u0, float(ts[0]) if ts.size else 0.0)
+            if not self._u0_finite:
+                self.check_finite(u0, float(ts[0]) if ts.size else 0.0)
             return np.repeat(u0[None, :], ts.size, axis=0)
         if not self.has_callables:
             n = ts.size

@@ -50,7 +50,8 @@ def check_grid(t) -> np.ndarray:
         raise InputError(
             "simulate: t must hold at least two output times, e.g. np.linspace(0, 10, 1001)"
         )
-    if not np.all(np.isfinite(tg)) or np.any(np.diff(tg) <= 0):
+    # strictly increasing (a NaN fails the comparison) with finite ends: all finite
+    if not (np.isfinite(tg[0]) and np.isfinite(tg[-1]) and (tg[1:] > tg[:-1]).all()):
         raise InputError("simulate: the output times t must be finite and strictly increasing")
     return tg
 
@@ -74,10 +75,11 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system,
     if isinstance(init, InitialValues):
         ip = np.asarray(init.p, dtype=float).ravel()
         other_t0 = abs(float(init.t0) - t0) > 1e-12 * max(1.0, abs(t0))
-        other_p = ip.size == np.size(pv) and not np.array_equal(ip, pv) and not np.allclose(
+        other_p = ip.size == np.size(pv) and not (ip == pv).all() and not np.allclose(
             ip, pv, rtol=1e-12, atol=0.0)
         u0 = sig.value(t0)
-        if list(init.x_names) == list(r.x_names):
+        xn = init.x_names
+        if xn is r.x_names or list(xn) == list(r.x_names):
             x0 = np.asarray(init.x0, dtype=float)
         else:
             try:
@@ -87,7 +89,8 @@ def initial_state(r, init, t0, inputs, params, sig, pv, system,
                     f"simulate: the initial values do not contain the state {exc.args[0]!r} of "
                     "this system; call dk.initialize on this system"
                 ) from None
-        if list(init.z_names) == list(r.z_names):
+        zn = init.z_names
+        if zn is r.z_names or list(zn) == list(r.z_names):
             z0 = np.asarray(init.z0, dtype=float)
         else:
             z0 = np.array([init.values.get(n, 0.0) for n in r.z_names], dtype=float)

@@ -93,6 +93,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -258,6 +259,10 @@ class DriverResult:
         return tr
 
 
+#: segment grids per System (weak: they go with the system), see :meth:`Driver._grid`
+_GRIDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def _push(cur, t: float, x, z) -> None:
     """Append one row to the current part."""
     cur[1].append(np.array([float(t)]))
@@ -309,6 +314,7 @@ class Driver:
         self.notes: list[str] = []
         #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
         self.current = system
+        self._tg_key: bytes | None = None
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
@@ -414,18 +420,39 @@ class Driver:
 
     # ------------------------------------------------------------------ the loop
     def _grid(self, t: float, tb: float, k: int):
-        """Segment grid from ``t`` to ``tb``: outputs ``tg[k:j]`` and check points."""
+        """Segment grid from ``t`` to ``tb``: outputs ``tg[k:j]`` and check points (kept per
+        system for the last few output grids: a repeated call, e.g. a parameter sweep on one
+        grid, builds each segment grid once; the arrays are read-only)."""
+        n = self.checks
+        dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
+        if dts:
+            n = max(n, int(math.ceil((tb - t) / min(dts))))
+        n = min(n, 20000)
+        if self._tg_key is None:
+            self._tg_key = self.tg.tobytes()  # (bytes cache their hash: hashed once)
+        key = (self._tg_key, t, tb, k, n)
+        cache = _GRIDS.get(self.system)
+        if cache is None:
+            cache = _GRIDS.setdefault(self.system, {})
+        hit = cache.get(key)
+        if hit is not None:
+            return hit
+        out = self._make_grid(t, tb, k, n)
+        out = (*out, np.nonzero(out[1][1:])[0] + 1)  # the output rows after the start
+        for a in (*out[:3], out[4]):
+            a.flags.writeable = False
+        if len(cache) >= 16:
+            cache.pop(next(iter(cache)))
+        cache[key] = out
+        return out
+
+    def _make_grid(self, t: float, tb: float, k: int, n: int):
         tg = self.tg
         j = int(np.searchsorted(tg, tb * (1 + 1e-14) + 1e-300, side="right"))
         outs = tg[k:j]
         pts = [np.array([t]), outs]
         if outs.size == 0 or outs[-1] < tb:
             pts.append(np.array([tb]))
-        n = self.checks
-        dts = [m.check_dt for m in self.monitors if getattr(m, "check_dt", None)]
-        if dts:
-            n = max(n, int(math.ceil((tb - t) / min(dts))))
-        n = min(n, 20000)
         chk = np.linspace(t, tb, n + 1)
         chk[0], chk[-1] = t, tb
         pts.append(chk[1:-1])
@@ -481,7 +508,7 @@ class Driver:
                 tb = t + L
                 if tb >= tg[-1] - 1e-12 * max(1.0, abs(tg[-1])) or (tg[-1] - tb) < 0.05 * L:
                     tb = float(tg[-1])
-                grid, is_out, is_chk, j = self._grid(t, tb, k)
+                grid, is_out, is_chk, j, out_rows = self._grid(t, tb, k)
                 self.stats["segments"] += 1
                 try:
                     X, Z = self._attempt(system, grid, x, z, first=(t == tg[0]))
@@ -520,7 +547,7 @@ class Driver:
                 seg = Segment(grid, X, Z, U, self.pv, is_out, system, self, is_chk)
                 fired = self._earliest(seg, states)
                 if fired is None:
-                    self._record(cur, seg, len(grid) - 1, inclusive=True)
+                    self._record(cur, seg, len(grid) - 1, inclusive=True, rows=out_rows)
                     for mi, m in enumerate(self.monitors):
                         states[mi] = m.accept(seg, len(grid) - 1, states[mi])
                     t, x, z = float(grid[-1]), X[-1].copy(), Z[-1].copy()
@@ -612,9 +639,11 @@ class Driver:
             subs[mi] = sub.tail(i)
             cands[mi] = m.check(subs[mi], states[mi])
 
-    def _record(self, cur, seg: Segment, upto: int, inclusive: bool, before: float | None = None):
-        """Keep the output rows of ``seg`` up to row ``upto`` (rows before ``before`` only)."""
-        sel = np.nonzero(seg.output[1: upto + 1])[0] + 1
+    def _record(self, cur, seg: Segment, upto: int, inclusive: bool, before: float | None = None,
+                rows: np.ndarray | None = None):
+        """Keep the output rows of ``seg`` up to row ``upto`` (rows before ``before`` only;
+        ``rows``: the output rows of the whole segment, known)."""
+        sel = rows if rows is not None else np.nonzero(seg.output[1: upto + 1])[0] + 1
         if before is not None:
             sel = sel[seg.t[sel] < before]
         if sel.size:

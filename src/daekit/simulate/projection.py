@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from ..errors import SimulationError
 from .driver import Action, Firing, Monitor, Segment
-from .vectorized import evaluate_rows, fast_call, spd_inverse
+from .vectorized import evaluate_columns, evaluate_rows, fast_call, spd_inverse
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
 
@@ -96,6 +96,7 @@ class Projector:
         self._ksp = None
         self._lu = None
         self._dense = None
+        self._symbolic = False
         self._maps: dict[int, ca.Function] = {}
 
     def set_tolerances(self, rtol: float, atol: float) -> None:
@@ -203,18 +204,60 @@ class Projector:
             X[a:b], Z[a:b] = self._project_chunk(T[a:b], X[a:b], Z[a:b], U[a:b], p, iters)
         return X, Z
 
+    #: up to this many equations in ``h`` a projected row's Gauss--Newton step is one
+    #: generated function (Cholesky of ``J D^+ J^T`` written out), evaluated for all rows at
+    #: once by :func:`~daekit.simulate.vectorized.evaluate_rows`; beyond, batched NumPy
+    SYMBOLIC_STEP_MAX_NH = 12
+
+    def _step_function(self, nu: int, npar: int) -> ca.Function:
+        """``(t, w, u, p, d) -> (h, dw)``: the minimum-norm Gauss--Newton step
+        ``dw = -D J^T (J D J^T)^{-1} h`` with ``D = diag(d)``, as one SX function (``J`` sparse,
+        the ``nh x nh`` Cholesky factor written out: a singular ``J D J^T`` gives NaN)."""
+        n, nh = self.nx + self.nz, self.nh
+        w, t = ca.SX.sym("w", n), ca.SX.sym("t")
+        u, pp, d = ca.SX.sym("u", nu), ca.SX.sym("p", npar), ca.SX.sym("d", n)
+        h = self.fun(t, w, u, pp)
+        J = ca.jacobian(h, w)
+        JD = ca.mtimes(J, ca.diag(d))
+        M = ca.mtimes(JD, J.T)
+        L = [[ca.SX(0)] * nh for _ in range(nh)]
+        for j in range(nh):
+            L[j][j] = ca.sqrt(M[j, j] - sum((L[j][k] ** 2 for k in range(j)), ca.SX(0)))
+            for i in range(j + 1, nh):
+                L[i][j] = (M[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), ca.SX(0))) \
+                    / L[j][j]
+        y = [ca.SX(0)] * nh
+        for i in range(nh):  # L y = h
+            y[i] = (h[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0))) / L[i][i]
+        lam = [ca.SX(0)] * nh
+        for i in reversed(range(nh)):  # L^T lam = y
+            lam[i] = (y[i] - sum((L[k][i] * lam[k] for k in range(i + 1, nh)), ca.SX(0))) \
+                / L[i][i]
+        dw = -ca.mtimes(JD.T, ca.vertcat(*lam))
+        return ca.Function("proj_step", [t, w, u, pp, d], [h, ca.densify(dw)])
+
+    def _build(self, nu: int, npar: int) -> None:
+        n = self.nx + self.nz
+        w = ca.SX.sym("w", n)
+        t, u = ca.SX.sym("t"), ca.SX.sym("u", nu)
+        pp = ca.SX.sym("p", npar)
+        h = self.fun(t, w, u, pp)
+        self._honly = ca.Function("proj_h", [t, w, u, pp], [h])
+        self._symbolic = self.nh <= self.SYMBOLIC_STEP_MAX_NH
+        if self._symbolic:
+            self._dense = self._step_function(nu, npar)
+        else:
+            self._dense = ca.Function("proj_dense", [t, w, u, pp],
+                                      [h, ca.densify(ca.jacobian(h, w))])
+
     def _project_chunk(self, T, X, Z, U, p, iters):
         nx, nz, nh = self.nx, self.nz, self.nh
         n = nx + nz
         N = T.size
         if self._dense is None:
-            w = ca.SX.sym("w", n)
-            t, u = ca.SX.sym("t"), ca.SX.sym("u", U.shape[1])
-            pp = ca.SX.sym("p", np.size(p))
-            h = self.fun(t, w, u, pp)
-            self._dense = ca.Function("proj_dense", [t, w, u, pp],
-                                      [h, ca.densify(ca.jacobian(h, w))])
-            self._honly = ca.Function("proj_h", [t, w, u, pp], [h])
+            self._build(U.shape[1], np.size(p))
+        if self._symbolic:
+            return self._symbolic_chunk(T, X, Z, U, p, iters)
         m = N  # (no padding: evaluated row-wise, vectorized.evaluate_rows)
         W = np.hstack([X, Z])
         W0 = W.copy()
@@ -227,11 +270,11 @@ class Projector:
         else:
             Dinv = np.repeat((1.0 / self.weights)[None, :], m, axis=0)
         Dinv = np.hstack([Dinv, np.full((m, nz), 1e8 * np.max(Dinv, initial=1.0))])
+        tiny = 1e-14 * (1 + np.max(np.abs(W), axis=1))
         # Gauss--Newton with the matrix of the first step kept (simplified Newton): the rows
         # are within drift_tol of the manifold, so the first step leaves O(drift^2) and the
         # next ones need only h (a third of the cost of h with its Jacobian)
         H, Jnz = evaluate_rows(self._dense, [T, W, U, P], cj)
-        tiny = 1e-14 * (1 + np.max(np.abs(W), axis=1))
         if not np.all(np.isfinite(H)) or np.all(np.max(np.abs(H), axis=1) < tiny):
             return X, Z
         Jt = Jnz.reshape(m, n, nh)  # J^T per row (CasADi's column-major blocks)
@@ -259,10 +302,74 @@ class Projector:
             if not np.all(np.isfinite(dW)):
                 break
             W[rows] -= dW
-        W = W[:N]
+        return self._finish(W, W0, nx)
+
+    @staticmethod
+    def _finish(W, W0, nx):
         ok = np.all(np.isfinite(W), axis=1)
-        W[~ok] = W0[:N][~ok]
+        W[~ok] = W0[~ok]
         return W[:, :nx], W[:, nx:]
+
+    def _symbolic_chunk(self, T, X, Z, U, p, iters):
+        """Full Gauss--Newton steps by the generated step function, on all rows at once in
+        column layout (``(size, rows)``; inputs the same on every row passed once): two for
+        every row (from within drift_tol of the manifold the second leaves rounding), then
+        ``h`` alone tells which rows need more. Rows that end non-finite stay as they were."""
+        nx, nz = self.nx, self.nz
+        N = T.size
+        cj = self._maps.setdefault("hj", {})
+        ch = self._maps.setdefault("h", {})
+        Wc = np.vstack([np.asarray(X, float).T, np.asarray(Z, float).T])  # (n, N)
+        W0 = Wc.copy()
+        Tc = T.reshape(1, N)
+        U = np.asarray(U, float).reshape(N, -1)
+        Uc = U[:1].T.copy() if not U.size or (U == U[0]).all() else np.ascontiguousarray(U.T)
+        Pc = np.asarray(p, float).reshape(-1, 1)
+        if self.rtol is not None:
+            sx = self.atol + self.rtol * np.abs(Wc[:nx])
+            Dx = sx * sx  # D^+ on x (its scale does not matter); z: free (large)
+        else:
+            Dx = (1.0 / self.weights)[:, None]
+        Dc = np.vstack([Dx, np.repeat(1e8 * _colmax(Dx)[None, :], nz, axis=0)])
+        tiny = 1e-14 * (1 + _colmax(np.abs(Wc)))
+
+        def cols(a, rows):
+            return a if rows is None or a.shape[1] == 1 else a[:, rows]
+
+        H, dW = evaluate_columns(self._dense, [Tc, Wc, Uc, Pc, Dc], N, cj)
+        if not np.isfinite(H).all() or (_colmax(np.abs(H)) < tiny).all():
+            return np.array(X, dtype=float), np.array(Z, dtype=float)
+        Wc += dW
+        rows = None
+        for k in range(1, iters):
+            if k > 1:  # which rows still need a step
+                Hr = evaluate_columns(self._honly, [cols(a, rows) for a in (Tc, Wc, Uc, Pc)],
+                                      N if rows is None else rows.size, ch)[0]
+                still = _colmax(np.abs(Hr)) >= cols(tiny[None, :], rows)[0]
+                rows = np.nonzero(still)[0] if rows is None else rows[still]
+                if rows.size == 0:
+                    break
+            m = N if rows is None else rows.size
+            dW = evaluate_columns(self._dense, [cols(a, rows) for a in (Tc, Wc, Uc, Pc, Dc)],
+                                  m, cj)[1]
+            if not np.isfinite(dW).all():
+                break
+            if rows is None:
+                Wc += dW
+            else:
+                Wc[:, rows] += dW
+        ok = np.isfinite(_colmax(np.abs(Wc)))  # (NaN propagates through the maximum)
+        Wc[:, ~ok] = W0[:, ~ok]
+        return Wc[:nx].T, Wc[nx:].T
+
+
+def _colmax(A: np.ndarray) -> np.ndarray:
+    """The maximum over axis 0 of a short, wide ``(k, N)`` array, one row at a time (NumPy's
+    axis-0 reduction walks such an array column by column: 5-10 times slower here)."""
+    out = np.array(A[0], dtype=float, copy=True)
+    for row in A[1:]:
+        np.maximum(out, row, out=out)
+    return out
 
 
 def _pow2(n: int) -> int:

@@ -253,8 +253,7 @@ class PivotMonitor(Monitor):
         lim = 1.0 / self._limit(rr)
         qp = state.get("q")
         tp = state.get("tq", -math.inf)
-        rows = [j for j in range(1, seg.t.size) if seg.check[j]]  # one batched evaluation
-        rows = np.asarray(rows, dtype=int)
+        rows = np.nonzero(seg.check[1:])[0] + 1  # one batched evaluation
         q = 1.0 / conditions(rr, seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p)
         prev = np.concatenate([[qp if qp is not None else np.nan], q[:-1]])
         with np.errstate(invalid="ignore"):

@@ -43,7 +43,7 @@ import scipy.sparse as sp
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
 from .trajectory import LazyColumns, Trajectory
-from .vectorized import evaluate_rows, fast_call
+from .vectorized import evaluate_columns, evaluate_rows, fast_call
 
 __all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
@@ -441,9 +441,23 @@ class System:
         if getattr(self, "_alg_dense", None) is None:
             r = self.r
             alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
+            Jz = ca.jacobian(alg, r.z)
             self._alg_dense = ca.Function("alg_dense", [r.t, r.x, r.z, r.u, r.p],
-                                          [alg, ca.densify(ca.jacobian(alg, r.z))])
+                                          [alg, ca.densify(Jz)])
             self._alg_maps = {}
+            # few unknowns: the Newton step itself as one function (CasADi's symbolic sparse
+            # QR of d alg/dz), evaluated for all rows at once in column layout
+            self._alg_step, self._alg_step_maps = None, {}
+            if self.nz <= 16:
+                try:
+                    step = ca.Function("alg_step", [r.t, r.x, r.z, r.u, r.p],
+                                       [alg, ca.densify(-ca.solve(Jz, alg))])
+                except RuntimeError:  # (structurally singular: the batched dense path)
+                    step = None
+                if step is not None and step.n_instructions() <= 20000:
+                    self._alg_step = step
+        if self._alg_step is not None:
+            return self._polish_columns(T, X, Z, U, p, iters)
         P = np.repeat(np.asarray(p, dtype=float).reshape(1, -1), n, axis=0)
         nz = self.nz
         T, X, U = np.asarray(T, float).ravel(), np.asarray(X, float), np.asarray(U, float)
@@ -462,6 +476,27 @@ class System:
                 break
             Z += dz
         return Z
+
+    def _polish_columns(self, T, X, Z, U, p, iters: int) -> np.ndarray:
+        """:meth:`polish_z` by the generated Newton step, in column layout."""
+        n = np.size(T)
+        Tc = np.asarray(T, float).reshape(1, n)
+        Xc = np.ascontiguousarray(np.asarray(X, float).reshape(n, -1).T)
+        Zc = np.ascontiguousarray(np.asarray(Z, float).reshape(n, -1).T)
+        U = np.asarray(U, float).reshape(n, -1)
+        Uc = U[:1].T.copy() if not U.size or (U == U[0]).all() else np.ascontiguousarray(U.T)
+        Pc = np.asarray(p, float).reshape(-1, 1)
+        for _ in range(iters):
+            g, dz = evaluate_columns(self._alg_step, [Tc, Xc, Zc, Uc, Pc], n,
+                                     self._alg_step_maps)
+            if not np.isfinite(g).all():
+                break
+            if np.abs(g).max() < 1e-15 * (1 + np.abs(Zc).max()):
+                break
+            if not np.isfinite(dz).all():
+                break
+            Zc += dz
+        return np.ascontiguousarray(Zc.T)
 
     def step0(self, x0, xdot0, span: float) -> float:
         """The first step: IDAS's own rule ``min(1e-3 span, 0.5 / ||xdot0||_wrms)`` with ``span``

@@ -209,10 +209,12 @@ class Projector:
     #: once by :func:`~daekit.simulate.vectorized.evaluate_rows`; beyond, batched NumPy
     SYMBOLIC_STEP_MAX_NH = 12
 
-    def _step_function(self, nu: int, npar: int) -> ca.Function:
-        """``(t, w, u, p, d) -> (h, dw)``: the minimum-norm Gauss--Newton step
-        ``dw = -D J^T (J D J^T)^{-1} h`` with ``D = diag(d)``, as one SX function (``J`` sparse,
-        the ``nh x nh`` Cholesky factor written out: a singular ``J D J^T`` gives NaN)."""
+    def _step_function(self, nu: int, npar: int) -> tuple[ca.Function, ca.Function]:
+        """``(t, w, u, p, d) -> (h, dw, L, JD)``: the minimum-norm Gauss--Newton step
+        ``dw = -D J^T (J D J^T)^{-1} h`` with ``D = diag(d)`` as one SX function (``J`` sparse,
+        the Cholesky factor ``L`` of the ``nh x nh`` matrix written out: a singular
+        ``J D J^T`` gives NaN), with ``L`` (lower triangle, by rows) and the nonzeros of
+        ``J D`` for simplified steps; and ``(L, JD, h) -> dw``, such a step with them."""
         n, nh = self.nx + self.nz, self.nh
         w, t = ca.SX.sym("w", n), ca.SX.sym("t")
         u, pp, d = ca.SX.sym("u", nu), ca.SX.sym("p", npar), ca.SX.sym("d", n)
@@ -226,15 +228,21 @@ class Projector:
             for i in range(j + 1, nh):
                 L[i][j] = (M[i, j] - sum((L[i][k] * L[j][k] for k in range(j)), ca.SX(0))) \
                     / L[j][j]
-        y = [ca.SX(0)] * nh
-        for i in range(nh):  # L y = h
-            y[i] = (h[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0))) / L[i][i]
-        lam = [ca.SX(0)] * nh
-        for i in reversed(range(nh)):  # L^T lam = y
-            lam[i] = (y[i] - sum((L[k][i] * lam[k] for k in range(i + 1, nh)), ca.SX(0))) \
-                / L[i][i]
-        dw = -ca.mtimes(JD.T, ca.vertcat(*lam))
-        return ca.Function("proj_step", [t, w, u, pp, d], [h, ca.densify(dw)])
+        low = [(i, j) for i in range(nh) for j in range(i + 1)]
+        step = ca.Function("proj_step", [t, w, u, pp, d],
+                           [h, ca.densify(_min_norm_step(L, JD, h)),
+                            ca.vertcat(*[L[i][j] for i, j in low]),
+                            ca.vertcat(*JD.nonzeros()) if JD.nnz() else ca.SX(0, 1)])
+        Ls = ca.SX.sym("L", len(low))
+        Lm = [[ca.SX(0)] * nh for _ in range(nh)]
+        for k, (i, j) in enumerate(low):
+            Lm[i][j] = Ls[k]
+        jd = ca.SX.sym("jd", JD.nnz())
+        hs = ca.SX.sym("h", nh)
+        JDs = ca.SX(JD.sparsity(), jd)
+        simple = ca.Function("proj_simplified", [Ls, jd, hs],
+                             [ca.densify(_min_norm_step(Lm, JDs, hs))])
+        return step, simple
 
     def _build(self, nu: int, npar: int) -> None:
         n = self.nx + self.nz
@@ -245,7 +253,7 @@ class Projector:
         self._honly = ca.Function("proj_h", [t, w, u, pp], [h])
         self._symbolic = self.nh <= self.SYMBOLIC_STEP_MAX_NH
         if self._symbolic:
-            self._dense = self._step_function(nu, npar)
+            self._dense, self._simplified = self._step_function(nu, npar)
         else:
             self._dense = ca.Function("proj_dense", [t, w, u, pp],
                                       [h, ca.densify(ca.jacobian(h, w))])
@@ -311,10 +319,12 @@ class Projector:
         return W[:, :nx], W[:, nx:]
 
     def _symbolic_chunk(self, T, X, Z, U, p, iters):
-        """Full Gauss--Newton steps by the generated step function, on all rows at once in
-        column layout (``(size, rows)``; inputs the same on every row passed once): two for
-        every row (from within drift_tol of the manifold the second leaves rounding), then
-        ``h`` alone tells which rows need more. Rows that end non-finite stay as they were."""
+        """Gauss--Newton by the generated step functions, on all rows at once in column layout
+        (``(size, rows)``; inputs the same on every row passed once): a full step and a
+        simplified one (the first step's factor) for every row, which from within drift_tol of
+        the manifold leaves rounding; rows whose second correction was not negligible go on
+        with full steps while ``h`` says they need them. Rows that end non-finite stay as they
+        were."""
         nx, nz = self.nx, self.nz
         N = T.size
         cj = self._maps.setdefault("hj", {})
@@ -336,31 +346,49 @@ class Projector:
         def cols(a, rows):
             return a if rows is None or a.shape[1] == 1 else a[:, rows]
 
-        H, dW = evaluate_columns(self._dense, [Tc, Wc, Uc, Pc, Dc], N, cj)
+        H, dW, Lf, JDf = evaluate_columns(self._dense, [Tc, Wc, Uc, Pc, Dc], N, cj)
         if not np.isfinite(H).all() or (_colmax(np.abs(H)) < tiny).all():
             return np.array(X, dtype=float), np.array(Z, dtype=float)
         Wc += dW
-        rows = None
-        for k in range(1, iters):
-            if k > 1:  # which rows still need a step
-                Hr = evaluate_columns(self._honly, [cols(a, rows) for a in (Tc, Wc, Uc, Pc)],
-                                      N if rows is None else rows.size, ch)[0]
-                still = _colmax(np.abs(Hr)) >= cols(tiny[None, :], rows)[0]
-                rows = np.nonzero(still)[0] if rows is None else rows[still]
-                if rows.size == 0:
-                    break
-            m = N if rows is None else rows.size
+        # a simplified step with the first step's factor on every row: from within drift_tol
+        # of the manifold it leaves rounding (its error is ~ |dw1| |dw2|); rows whose second
+        # correction is not negligible go on with full steps, checked by h
+        H2 = evaluate_columns(self._honly, [Tc, Wc, Uc, Pc], N, ch)[0]
+        dW = evaluate_columns(self._simplified, [Lf, JDf, H2], N,
+                              self._maps.setdefault("simple", {}))[0]
+        if np.isfinite(dW).all():
+            Wc += dW
+            rows = np.nonzero(_colmax(np.abs(dW)) > 1e-10 * (1 + _colmax(np.abs(Wc))))[0]
+        else:
+            rows = np.arange(N)
+        for _ in range(2, iters):
+            if rows.size == 0:
+                break
+            Hr = evaluate_columns(self._honly, [cols(a, rows) for a in (Tc, Wc, Uc, Pc)],
+                                  rows.size, ch)[0]
+            rows = rows[_colmax(np.abs(Hr)) >= tiny[rows]]
+            if rows.size == 0:
+                break
             dW = evaluate_columns(self._dense, [cols(a, rows) for a in (Tc, Wc, Uc, Pc, Dc)],
-                                  m, cj)[1]
+                                  rows.size, cj)[1]
             if not np.isfinite(dW).all():
                 break
-            if rows is None:
-                Wc += dW
-            else:
-                Wc[:, rows] += dW
+            Wc[:, rows] += dW
         ok = np.isfinite(_colmax(np.abs(Wc)))  # (NaN propagates through the maximum)
         Wc[:, ~ok] = W0[:, ~ok]
         return Wc[:nx].T, Wc[nx:].T
+
+
+def _min_norm_step(L, JD, h) -> ca.SX:
+    """``-JD^T (L L^T)^{-1} h`` (``L`` a lower-triangular list of lists of SX)."""
+    nh = len(L)
+    y = [ca.SX(0)] * nh
+    for i in range(nh):  # L y = h
+        y[i] = (h[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0))) / L[i][i]
+    lam = [ca.SX(0)] * nh
+    for i in reversed(range(nh)):  # L^T lam = y
+        lam[i] = (y[i] - sum((L[k][i] * lam[k] for k in range(i + 1, nh)), ca.SX(0))) / L[i][i]
+    return -ca.mtimes(JD.T, ca.vertcat(*lam))
 
 
 def _colmax(A: np.ndarray) -> np.ndarray:

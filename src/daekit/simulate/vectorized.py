@@ -175,8 +175,8 @@ def evaluate_rows(F: ca.Function, inputs, cache: dict,
     """``F`` at the rows of ``inputs`` (a list of ``(N, nnz_in)`` arrays, one per input): with
     :class:`RowEvaluator` where it is cheaper than the mapped Function (from ~32 rows on, and on
     fewer for short functions; ``min_rows``: from that many rows on instead), when it can
-    translate ``F``, else with the mapped Function. ``cache`` (a dict kept by the caller) holds both. Returns ``(N, nnz_out)``
-    arrays.
+    translate ``F``, else with the mapped Function. ``cache`` (a dict kept by the caller)
+    holds both. Returns ``(N, nnz_out)`` arrays.
 
     >>> import casadi as ca, numpy as np
     >>> x = ca.SX.sym("x")

@@ -454,7 +454,7 @@ class System:
                                        [alg, ca.densify(-ca.solve(Jz, alg))])
                 except RuntimeError:  # (structurally singular: the batched dense path)
                     step = None
-                if step is not None and step.n_instructions() <= 20000:
+                if step is not None and step.n_instructions() <= 5000:
                     self._alg_step = step
         if self._alg_step is not None:
             return self._polish_columns(T, X, Z, U, p, iters)

@@ -192,7 +192,8 @@ def evaluate_rows(F: ca.Function, inputs, cache: dict,
         k = cache.get("n_instructions")
         if k is None:
             k = cache["n_instructions"] = F.n_instructions() if F.is_a("SXFunction") else 10**9
-        rows = k * max(0.35 - 0.011 * n, 0.0) < 40.0
+        # (translating costs ~15 us per instruction once: long functions only from 96 rows)
+        rows = n >= 96 or (k <= 2000 and k * max(0.35 - 0.011 * n, 0.0) < 40.0)
     else:
         rows = n >= min_rows
     if rows:

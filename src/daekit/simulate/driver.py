@@ -442,7 +442,10 @@ class Driver:
         for a in (*out[:3], out[4]):
             a.flags.writeable = False
         if len(cache) >= 16:
-            cache.pop(next(iter(cache)))
+            try:
+                cache.pop(next(iter(cache)), None)
+            except (RuntimeError, StopIteration):  # (another thread changed it meanwhile)
+                pass
         cache[key] = out
         return out
 

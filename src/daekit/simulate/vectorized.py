@@ -108,6 +108,7 @@ class RowEvaluator:
 
     def __init__(self, F: ca.Function) -> None:
         self.F = F
+        self._nnz_out = [F.nnz_out(j) for j in range(F.n_out())]
         self.ok = F.is_a("SXFunction")
         self._fn = None
         if not self.ok or F.n_instructions() > 50000:  # (a very long function: map it)
@@ -154,7 +155,7 @@ class RowEvaluator:
                 a.reshape(n, -1).T))
         n = 1 if n is None else n
         args = [np.zeros((F.nnz_in(j), n)) if a is None else a for j, a in enumerate(args)]
-        outs = [np.zeros((F.nnz_out(j), n)) for j in range(F.n_out())]
+        outs = [np.zeros((k, n)) for k in self._nnz_out]
         with np.errstate(all="ignore"):
             self._fn(*args, *outs)
         return [o.T for o in outs]
@@ -163,8 +164,7 @@ class RowEvaluator:
         """Like calling it, with inputs and outputs transposed: input ``j`` a ``(nnz_in, n)``
         array, or ``(nnz_in, 1)`` for a value shared by all points (broadcast: the operations
         on shared values alone stay scalar-sized); outputs ``(nnz_out, n)``."""
-        F = self.F
-        outs = [np.zeros((F.nnz_out(j), n)) for j in range(F.n_out())]
+        outs = [np.zeros((k, n)) for k in self._nnz_out]
         with np.errstate(all="ignore"):
             self._fn(*inputs, *outs)
         return outs

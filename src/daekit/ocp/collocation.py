@@ -297,18 +297,25 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, li
     syms = [a.t, a.x, a.z, a.w, a.p]
     D = point_jacobian(q, y, syms, args, pts, nV)
     jac = lin["JV"] + ca.mtimes(lin["JQ"], D)
+    # the end rows and the Mayer term touch a few entries of V: expanded to SX (cheap, no
+    # MX derivative graph over the whole decision vector), differentiated there
+    Vs = ca.SX.sym("V", nV)
+    lam_fs, lam_es = ca.SX.sym("lam_f"), ca.SX.sym("lam_e", len(end_rows))
+    ends_s, J_s = ca.Function("ends_q", [V, Q], [ends, J])(Vs, Qz)
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nG)
     if end_rows:
         E = dm_triplet(nG, len(end_rows), end_rows, np.arange(len(end_rows)),
                         np.ones(len(end_rows)))
-        jac = jac + ca.mtimes(E, ca.jacobian(ends, V))
+        jend = ca.Function("jac_ends", [Vs], [ca.jacobian(ends_s, Vs)])
+        jac = jac + ca.mtimes(E, jend(V))
+        lag_end = lam_fs * J_s + ca.dot(lam_es, ends_s)
+    else:
+        lag_end = lam_fs * J_s
     jac_g = ca.Function("nlp_jac_g", [V, p_in], [G_real, jac])
     # Hessian
-    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nG)
-    lag_end = lam_f * J
-    if end_rows:
-        lag_end = lag_end + ca.dot(lam_g[end_rows], ends)
-    HV = ca.Function("HV", [V, Q, lam_f, lam_g], [ca.triu(ca.hessian(lag_end, V)[0])])(
-        V, Qz, lam_f, lam_g)
+    hend = ca.Function("hess_ends", [Vs, lam_fs, lam_es],
+                       [ca.triu(ca.hessian(lag_end, Vs)[0])])
+    HV = hend(V, lam_f, lam_g[end_rows] if end_rows else ca.MX(0, 1))
     lq = ca.mtimes(lin["JQ"].T, lam_g) + lam_f * lin["gJ"]
     Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
     H = HV if Hp is None else HV + Hp

@@ -541,8 +541,39 @@ def _consistent_end(prob, x, z, w, p, T):
     return vT[: a.nx], vT[a.nx:a.nx + a.nz], True
 
 
+def _start_by_projection(v, init_rows, man, vg, nx, lb, ub):
+    """The point where the initial conditions ``init_rows`` and the manifold rows ``man`` hold,
+    by Gauss-Newton from ``vg`` with least-norm steps in which the algebraic unknowns (the
+    entries after ``nx``) move 100 times more cheaply than the states (the weights of
+    :func:`_consistent_start`'s least squares); None unless all rows hold to 1e-10 (scaled)
+    within the bounds ``lb, ub`` (then the least-squares problem decides). A few
+    evaluations of one small function instead of building and running an IPOPT problem."""
+    from .consistency import as_array, project_ends
+
+    eqs = ca.vertcat(*init_rows, man)
+    if eqs.numel() == 0:
+        return None
+    n = vg.size
+    s = np.ones(n)
+    s[nx:] = 100.0
+    F = ca.Function("start", [v], [eqs, ca.jacobian(eqs, v)])
+
+    def fun(u, _vT, _p, _T):
+        r, J = F(vg + s * u)
+        J = as_array(J) * s
+        return as_array(r), np.hstack([J, np.zeros_like(J)])
+
+    u, _, res = project_ends(fun, np.zeros(n), np.zeros(n), None, 0.0, tol=1e-10)
+    sol = vg + s * u
+    if not (res < 1e-10 and np.all(np.isfinite(sol)) and np.all(sol >= lb)
+            and np.all(sol <= ub)):
+        return None
+    return sol
+
+
 def _consistent_start(prob, xg, zg, w0, p):
-    """Closest point to the initial conditions and guesses on ``alg = 0, invariants = 0``."""
+    """Closest point to the initial conditions and guesses on ``alg = 0, invariants = 0``
+    (by projection when that meets them all, else by least squares)."""
     a = prob.aug
     n = a.nx + a.nz
     if n == 0:
@@ -556,6 +587,11 @@ def _consistent_start(prob, xg, zg, w0, p):
     obj = obj + 1e-4 * ca.sumsqr(x - xg) + 1e-8 * ca.sumsqr(z - zg)
     man = prob.man_fun(0.0, vw, ca.DM(p))
     xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
+    vg = np.concatenate([xg, zg])
+    lb, ub = np.concatenate([xlb, zlb]), np.concatenate([xub, zub])
+    sol = _start_by_projection(v, [rows[i] for i in init], man, vg, a.nx, lb, ub)
+    if sol is not None:
+        return sol[: a.nx], sol[a.nx:]
     try:
         solver = ca.nlpsol("init", "ipopt", {"x": v, "f": obj, "g": man},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

@@ -155,14 +155,16 @@ def make_guess(prob, guess) -> Guess:
                 whole = sim.horizon(x, z, w_at(0.5 * T / N), T, grid)
         except RuntimeError:
             whole = None
+    if whole is not None:  # constant controls: the same at every time
+        wk = w_at(0.5 * T / N)
+        ts = [0.0, *(np.asarray(grid) * T).tolist()]
+        Xs, Zs = [x0, *whole[0].T], [z0, *whole[1].T]
+        Ws = Ws + [wk] * len(grid)
     with quiet():  # SUNDIALS' messages on a failed interval (set up once, not per interval)
-        for k in range(N):
+        for k in range(N if whole is None else 0):
             tk, h = k * T / N, T / N
             wk = w_at(tk + 0.5 * h)
-            if whole is not None:
-                cols = slice(k * tau.size, (k + 1) * tau.size)
-                xf, zf = whole[0][:, cols], whole[1][:, cols]
-            elif failed is None:
+            if failed is None:
                 try:
                     xf, zf = sim.interval(x, z, wk, tk, h)
                 except RuntimeError as exc:

@@ -941,10 +941,12 @@ def test_closed_form_collocation_derivatives_match_casadi_ad(case):
             assert np.max(np.abs(A - R)) <= 1e-10 * max(1.0, np.max(np.abs(R)))
 
 
-def test_quadratic_composite_derivatives_match_casadi_ad():
+@pytest.mark.parametrize("as_residuals", [False, True])
+def test_quadratic_composite_derivatives_match_casadi_ad(as_residuals):
     """The blend's closed-form derivatives (f quadratic in (V, Q), g linear in Q, Q a model
     mapped over points: daekit.ocp.derivatives.quadratic_composite) equal CasADi's AD of the
-    composed NLP at random points and multipliers."""
+    composed NLP at random points and multipliers; also with f given as |r|^2 + c (the
+    constant Hessian from the residuals' Jacobian)."""
     from daekit.ocp.derivatives import quadratic_composite
 
     rng = np.random.default_rng(2)
@@ -955,12 +957,14 @@ def test_quadratic_composite_derivatives_match_casadi_ad():
     V = ca.MX.sym("V", K * ny)
     Q = ca.MX.sym("Q", 3, K)
     A, Bm = rng.standard_normal((5, K * ny)), rng.standard_normal((5, 3 * K))
-    f = ca.sumsqr(ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1) + ca.sum2(Q[2, :])
+    r = ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1
+    c = ca.sum2(Q[2, :]) + 0.5 * V[1]
+    f = ca.sumsqr(r) + c
     g = ca.vec(Q[:2, 1:])
     pts = np.arange(K * ny).reshape(K, ny)
     ts = ca.DM(np.linspace(0, 1, K)).T
     f_r, g_r, opts = quadratic_composite(V, Q, f, g, q, y, [t, y], (ts, ca.reshape(V, ny, K)),
-                                         pts)
+                                         pts, residuals=(r, c) if as_residuals else None)
     lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", g.numel())
     ref = ca.Function("ref", [V, lf, lg], [ca.gradient(f_r, V), ca.jacobian(g_r, V),
                                            ca.triu(ca.hessian(lf * f_r + ca.dot(lg, g_r), V)[0])])

@@ -85,10 +85,14 @@ def point_hessian(q, y, syms, args, lq, pts, nV):
     return ca.MX(sp, ca.mtimes(S, ca.vec(hf.map(M)(*args, lq).nz[:])))
 
 
-def quadratic_composite(V, Q, f, g, q, y, syms, args, pts) -> tuple:
+def quadratic_composite(V, Q, f, g, q, y, syms, args, pts, residuals=None) -> tuple:
     """For ``f`` quadratic in ``(V, Q)`` and ``g`` linear in ``Q`` alone (MX in the symbols ``V``
     and ``Q``), with ``Q = q`` mapped over the points: ``(f, g, options)``, the NLP with ``Q``
     replaced and IPOPT's ``jac_g``/``hess_lag``/``grad_f`` in closed form.
+
+    ``residuals = (r, c)`` with ``f = |r|^2 + c``, ``r`` and ``c`` linear in ``(V, Q)``: the
+    constant Hessian of ``f`` is then ``2 R^T R`` (``R``: the constant Jacobian of ``r``), one
+    first-order derivative instead of a second-order one.
 
     >>> V = ca.MX.sym("V", 2); Q = ca.MX.sym("Q", 1, 2)
     >>> x = ca.SX.sym("x"); q = x**2
@@ -107,12 +111,23 @@ def quadratic_composite(V, Q, f, g, q, y, syms, args, pts) -> tuple:
     D = point_jacobian(q, y, syms, args, pts, nV)
     zV, zQ = ca.DM.zeros(nV), ca.DM.zeros(nq, M)
     W = ca.vertcat(V, Qv)
-    Hf = ca.Function("Hf", [V, Q], [ca.hessian(f, W)[0]])(zV, zQ)  # constant
+    if residuals is None:
+        Hf = ca.Function("Hf", [V, Q], [ca.hessian(f, W)[0]])(zV, zQ)  # constant
+        GQ = ca.Function("GQ", [V, Q], [ca.jacobian(g, Qv)])(zV, zQ)
+        grad = ca.Function("gr", [V, Q], [ca.gradient(f, V), ca.gradient(f, Qv)])
+        fV, fQ = grad(V, Qval)
+    else:
+        r, c = residuals
+        c = ca.MX(c) if not isinstance(c, ca.MX) else c
+        R, gc, GQ = ca.Function("lin", [V, Q], [ca.jacobian(r, W), ca.gradient(c, W),
+                                                 ca.jacobian(g, Qv)])(zV, zQ)
+        R, gc = ca.DM(ca.sparsify(R)), ca.DM(ca.sparsify(gc))
+        Hf = 2 * ca.mtimes(R.T, R)
+        fW = 2 * ca.mtimes(R.T, ca.Function("r", [V, Q], [r])(V, Qval)) + gc
+        fV, fQ = fW[:nV], fW[nV:]
     Hf = ca.DM(ca.sparsify(Hf))
     fVV, fVQ, fQQ = Hf[:nV, :nV], Hf[:nV, nV:], Hf[nV:, nV:]
-    GQ = ca.DM(ca.sparsify(ca.Function("GQ", [V, Q], [ca.jacobian(g, Qv)])(zV, zQ)))
-    grad = ca.Function("gr", [V, Q], [ca.gradient(f, V), ca.gradient(f, Qv)])
-    fV, fQ = grad(V, Qval)
+    GQ = ca.DM(ca.sparsify(GQ))
     p_in = ca.MX.sym("p", 0)
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.numel())
     BD = ca.mtimes(fVQ, D)

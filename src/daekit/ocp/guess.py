@@ -311,10 +311,14 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
     dX = X[:, 1:] - X[:, :-1]
     E = (dX - Hh * (ode[:, 1:] + ode[:, :-1])) * Sc
     D = dX * Sc
-    f = ca.sum2(ca.sum1(E**2) / ca.DM(h)) + 1e-3 * ca.sum2(ca.sum1(D**2) / ca.DM(h))
-    f = f + 1e-6 * ca.sumsqr(Wv) / K
+    # f = |r|^2 + c: the dynamics mismatch and the smoothness (each interval weighted by
+    # 1 / h), a little of the controls' size, and the (linear in Q) integral objective
+    rh = ca.DM(np.repeat(1.0 / np.sqrt(h), a.nx, axis=0))
+    r = ca.vertcat(ca.vec(E * rh), np.sqrt(1e-3) * ca.vec(D * rh), np.sqrt(1e-6 / K) * ca.vec(Wv))
+    c = 0
     if prob.has_lagrange and BLEND_LAGRANGE:
-        f = f + BLEND_LAGRANGE * ca.sum2(0.5 * ca.DM(h) * (lag[:, 1:] + lag[:, :-1]))
+        c = BLEND_LAGRANGE * ca.sum2(0.5 * ca.DM(h) * (lag[:, 1:] + lag[:, :-1]))
+    f = ca.sumsqr(r) + c
     xlb, xub, zlb, zub, wlb, wub = prob.simple_bounds()
 
     def rep(v):
@@ -341,7 +345,7 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
         xv = Vs
         f, G, extra = quadratic_composite(
             Vs, Q, f, G, q, ca.vertcat(a.x, a.z, a.w), [a.t, a.x, a.z, a.w, a.p],
-            (ts.reshape(1, -1), X, Z, Wv, P), pts)
+            (ts.reshape(1, -1), X, Z, Wv, P), pts, residuals=(r, c))
     else:
         xv = ca.vertcat(ca.vec(X), ca.vec(Z), ca.vec(Wv))
     try:

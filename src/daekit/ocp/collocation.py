@@ -299,23 +299,28 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, li
     jac = lin["JV"] + ca.mtimes(lin["JQ"], D)
     # the end rows and the Mayer term touch a few entries of V: expanded to SX (cheap, no
     # MX derivative graph over the whole decision vector), differentiated there
+    # (differentiated with respect to the entries they use, ``u = V[used]``, and placed)
     Vs = ca.SX.sym("V", nV)
     lam_fs, lam_es = ca.SX.sym("lam_f"), ca.SX.sym("lam_e", len(end_rows))
     ends_s, J_s = ca.Function("ends_q", [V, Q], [ends, J])(Vs, Qz)
+    used = np.flatnonzero(ca.which_depends(ca.vertcat(ends_s, J_s), Vs, 1, False)).tolist()
+    us, um = (Vs[used], V[used]) if used else (ca.SX(0, 1), ca.MX(0, 1))
+    place = dm_triplet(len(used), nV, np.arange(len(used)), used, np.ones(len(used)))
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", nG)
     if end_rows:
         E = dm_triplet(nG, len(end_rows), end_rows, np.arange(len(end_rows)),
                         np.ones(len(end_rows)))
-        jend = ca.Function("jac_ends", [Vs], [ca.jacobian(ends_s, Vs)])
-        jac = jac + ca.mtimes(E, jend(V))
+        jend = ca.Function("jac_ends", [us], [ca.jacobian(ends_s, us)])
+        jac = jac + ca.mtimes(E, ca.mtimes(jend(um), place))
         lag_end = lam_fs * J_s + ca.dot(lam_es, ends_s)
     else:
         lag_end = lam_fs * J_s
     jac_g = ca.Function("nlp_jac_g", [V, p_in], [G_real, jac])
-    # Hessian
-    hend = ca.Function("hess_ends", [Vs, lam_fs, lam_es],
-                       [ca.triu(ca.hessian(lag_end, Vs)[0])])
-    HV = hend(V, lam_f, lam_g[end_rows] if end_rows else ca.MX(0, 1))
+    # Hessian (used is increasing, so the placed upper triangle stays upper)
+    hend = ca.Function("hess_ends", [us, lam_fs, lam_es],
+                       [ca.triu(ca.hessian(lag_end, us)[0])])
+    HV = ca.mtimes(place.T, ca.mtimes(
+        hend(um, lam_f, lam_g[end_rows] if end_rows else ca.MX(0, 1)), place))
     lq = ca.mtimes(lin["JQ"].T, lam_g) + lam_f * lin["gJ"]
     Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
     H = HV if Hp is None else HV + Hp

@@ -155,11 +155,17 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
     prob.add_path(B, 0.0, X[:, 0], Z[:, 0], W0, P, 0.0)
     # collocation: for each Radau point j, all intervals at once
     mapped = {}  # index in B.g -> ("dynamics", j) / ("alg",) / ("path",): rows linear in Q
+    # the derivatives of the state polynomials at all collocation points: one product with
+    # the constant (M + 1) x M matrix of the coefficients C (column i d + j - 1: interval i,
+    # Radau point j)
+    i_, r_, j_ = np.meshgrid(np.arange(N), np.arange(d + 1), np.arange(1, d + 1), indexing="ij")
+    XP = ca.mtimes(X, dm_triplet(M + 1, M, (i_ * d + r_).ravel(), (i_ * d + j_ - 1).ravel(),
+                                 C[r_, j_].ravel()))
+    dyn_names = [f"dynamics on interval {k}" for k in range(N) for _ in range(nx)]
     for j in range(1, d + 1):
-        xp = sum(float(C[r, j]) * X[:, r:r + M - d + 1:d] for r in range(d + 1))
         n_g = len(B.g)
-        B.con(ca.vec(xp - h * ode[:, j - 1::d]), 0.0, 0.0, "dynamics", None, "dynamics",
-              [f"dynamics on interval {k}" for k in range(N) for _ in range(nx)],
+        B.con(ca.vec(XP[:, j - 1::d] - h * ode[:, j - 1::d]), 0.0, 0.0, "dynamics", None,
+              "dynamics", dyn_names,
               times=np.repeat(fr[j::d], nx))
         if len(B.g) > n_g:
             mapped[n_g] = ("dynamics", j)

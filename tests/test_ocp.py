@@ -910,9 +910,10 @@ def _structured_problems():
 
 @pytest.mark.parametrize("case", [0, 1, 2])
 def test_closed_form_collocation_derivatives_match_casadi_ad(case):
-    """The collocation's constraint Jacobian and Lagrangian Hessian in closed form (per-point
-    model derivatives scattered into place, daekit.ocp.collocation.STRUCTURED) equal CasADi's
-    AD of the same NLP at random points and multipliers."""
+    """The collocation's constraint Jacobian, Lagrangian Hessian and objective gradient in
+    closed form (per-point model derivatives scattered into place,
+    daekit.ocp.collocation.STRUCTURED) equal CasADi's AD of the same NLP at random points and
+    multipliers."""
     from daekit.ocp.boundary import analyze
     from daekit.ocp.collocation import transcribe
     from daekit.ocp.guess import make_guess
@@ -927,16 +928,21 @@ def test_closed_form_collocation_derivatives_match_casadi_ad(case):
     lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", G.numel())
     jac_ad = ca.Function("j", [V], [ca.jacobian(G, V)])
     hess_ad = ca.Function("h", [V, lf, lg], [ca.triu(ca.hessian(lf * J + ca.dot(lg, G), V)[0])])
+    grad_ad = ca.Function("gf", [V], [J, ca.gradient(J, V)])
+    assert tr.derivatives["grad_f"].sparsity_out(1).is_dense()  # IPOPT reads it as dense
     rng = np.random.default_rng(1)
     for _ in range(2):
         v = rng.standard_normal(V.numel())
         lam = rng.standard_normal(G.numel())
         g_cf, J_cf = tr.derivatives["jac_g"](v, [])
         H_cf = tr.derivatives["hess_lag"](v, [], 0.7, lam)
+        f_cf, gf_cf = tr.derivatives["grad_f"](v, [])
         J_ref, H_ref = jac_ad(v), hess_ad(v, 0.7, lam)
+        f_ad, gf_ref = grad_ad(v)
         g_ad = ca.Function("g", [V], [G])(v)
         assert np.allclose(np.asarray(g_cf).ravel(), np.asarray(g_ad).ravel())
-        for A, R in ((J_cf, J_ref), (H_cf, H_ref)):
+        assert abs(float(f_cf) - float(f_ad)) <= 1e-12 * max(1.0, abs(float(f_ad)))
+        for A, R in ((J_cf, J_ref), (H_cf, H_ref), (gf_cf, gf_ref)):
             A, R = np.asarray(ca.densify(A)), np.asarray(ca.densify(R))
             assert np.max(np.abs(A - R)) <= 1e-10 * max(1.0, np.max(np.abs(R)))
 
@@ -965,6 +971,7 @@ def test_quadratic_composite_derivatives_match_casadi_ad(as_residuals):
     ts = ca.DM(np.linspace(0, 1, K)).T
     f_r, g_r, opts = quadratic_composite(V, Q, f, g, q, y, [t, y], (ts, ca.reshape(V, ny, K)),
                                          pts, residuals=(r, c) if as_residuals else None)
+    assert opts["grad_f"].sparsity_out(1).is_dense()  # IPOPT reads it as dense
     lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", g.numel())
     ref = ca.Function("ref", [V, lf, lg], [ca.gradient(f_r, V), ca.jacobian(g_r, V),
                                            ca.triu(ca.hessian(lf * f_r + ca.dot(lg, g_r), V)[0])])

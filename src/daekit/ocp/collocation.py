@@ -198,8 +198,8 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
         G_real, J_real = ca.Function("nlp_q", [V, Q], [G, tr.J])(V, Qval)
         lin = _linear_parts(B.g, mapped, offs["x"], int(V.numel()), nx, nz, nq, N, d, C,
                             float(h), b)
-        tr.derivatives = _structured_derivatives(prob, fq, V, Q, tr.J, G_real, tc, X, Z,
-                                                 Wc, Pm, pts, lin)
+        tr.derivatives = _structured_derivatives(prob, fq, V, Q, tr.J, G_real, J_real, tc, X,
+                                                 Z, Wc, Pm, pts, lin)
         B.g = [G_real]
         tr.J = J_real
     return tr
@@ -280,14 +280,17 @@ def _linear_parts(g_list, mapped, x_off, nV, nx, nz, nq, N, d, C, h, b) -> dict:
             "ends": [g for gi, g in enumerate(g_list) if gi not in mapped]}
 
 
-def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, lin) -> dict:
-    """IPOPT's ``jac_g`` and ``hess_lag`` for the NLP ``G(V, Q), J(V, Q)`` (linear in ``Q``)
-    with ``Q = fq`` mapped over the collocation points.
+def _structured_derivatives(prob, fq, V, Q, J, G_real, J_real, tc, X, Z, Wc, Pm, pts,
+                            lin) -> dict:
+    """IPOPT's ``jac_g``, ``hess_lag`` and ``grad_f`` for the NLP ``G(V, Q), J(V, Q)`` (linear
+    in ``Q``) with ``Q = fq`` mapped over the collocation points.
 
     ``dG/dV = dG/dV|_Q + dG/dQ dQ/dV``: constant collocation sums, the end rows by AD, and the
     per-point Jacobians of ``fq`` through the constant ``dG/dQ``. The Lagrangian Hessian is
     that of the end rows and the Mayer term (AD) plus the per-point Hessians of ``lq . fq``
-    with the multipliers ``lq = dG/dQ^T lam_g + dJ/dQ lam_f``, scattered into place.
+    with the multipliers ``lq = dG/dQ^T lam_g + dJ/dQ lam_f``, scattered into place. The
+    objective's gradient is ``dJ/dQ`` through the same per-point Jacobians plus the Mayer
+    term's.
     """
     a = prob.aug
     M, ny = pts.shape
@@ -331,4 +334,9 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, tc, X, Z, Wc, Pm, pts, li
     Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
     H = HV if Hp is None else HV + Hp
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
-    return {"jac_g": jac_g, "hess_lag": hess_lag}
+    # the objective's gradient: the Radau weights through the per-point Jacobians, plus the
+    # Mayer term's (J is linear in Q and separable, so its V part is that at Q = 0)
+    gend = ca.Function("grad_ends", [us], [ca.gradient(J_s, us)])
+    grad = ca.mtimes(D.T, lin["gJ"]) + ca.mtimes(place.T, gend(um))
+    grad_f = ca.Function("nlp_grad_f", [V, p_in], [J_real, ca.densify(grad)])  # IPOPT: dense
+    return {"jac_g": jac_g, "hess_lag": hess_lag, "grad_f": grad_f}

@@ -137,7 +137,8 @@ def quadratic_composite(V, Q, f, g, q, y, syms, args, pts, residuals=None) -> tu
     if Hp is not None:
         H = ca.triu(H) + Hp
     opts = {
-        "grad_f": ca.Function("nlp_grad_f", [V, p_in], [f_real, fV + ca.mtimes(D.T, fQ)]),
+        "grad_f": ca.Function("nlp_grad_f", [V, p_in],  # IPOPT takes a dense gradient
+                              [f_real, ca.densify(fV + ca.mtimes(D.T, fQ))]),
         "jac_g": ca.Function("nlp_jac_g", [V, p_in], [g_real, ca.mtimes(GQ, D)]),
         "hess_lag": ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)]),
     }

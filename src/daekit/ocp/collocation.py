@@ -306,9 +306,10 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, J_real, tc, X, Z, Wc, Pm,
     syms = [a.t, a.x, a.z, a.w, a.p]
     D = point_jacobian(q, y, syms, args, pts, nV)
     jac = lin["JV"] + ca.mtimes(lin["JQ"], D)
-    # the end rows and the Mayer term touch a few entries of V: expanded to SX (cheap, no
-    # MX derivative graph over the whole decision vector), differentiated there
-    # (differentiated with respect to the entries they use, ``u = V[used]``, and placed)
+    # the end rows and the Mayer term touch a few entries of V: expanded to SX and
+    # differentiated with respect to the entries they use, u = V[used], then placed (no MX
+    # derivative graph over the whole decision vector; measured: the end rows' Jacobian and
+    # Hessian 6.3 -> 1.1 ms to build on the planar swing)
     Vs = ca.SX.sym("V", nV)
     lam_fs, lam_es = ca.SX.sym("lam_f"), ca.SX.sym("lam_e", len(end_rows))
     ends_s, J_s = ca.Function("ends_q", [V, Q], [ends, J])(Vs, Qz)

@@ -3,9 +3,11 @@
 Four sources, all ending as a function ``t -> (X, Z, W)`` that the transcriptions sample on
 their own grid:
 
-- none or a dict: daekit simulates. The simulation starts from a consistent point: the closest
-  point (least squares on the initial conditions, then on the distance to the user's guesses)
-  that satisfies the algebraic equations and the invariants, found with a small IPOPT problem.
+- none or a dict: daekit simulates. The simulation starts from a consistent point: a point
+  near the user's guesses where the initial conditions, the algebraic equations and the
+  invariants hold, found by a Gauss-Newton projection with least-norm steps; only when that
+  does not meet them all, the closest point in the least-squares sense (on the initial
+  conditions, then on the distance to the guesses), by a small IPOPT problem.
   It then integrates the index-1 system with IDAS interval by interval with the guessed
   controls held constant (the algebraic unknowns re-solved by Newton at each interval start,
   see :class:`_GuessSimulator`). Should the integration fail, the rest of the guess is a

@@ -778,6 +778,20 @@ def test_condition_contradicting_the_invariants_alone_is_not_vetoed_but_named():
 betts_pendulum = betts_pendulum_ocp
 
 
+def test_default_guess_starts_at_the_exact_consistent_point():
+    """Betts 10.103 with only its two independent initial values (x = 1, der(y) = 0): the
+    default guess starts at the one consistent point, x = 1, y = 0 (the unit circle),
+    der(x) = 0 (the velocity invariant x der(x) + y der(y) = 0), der(y) = 0, to roundoff (a
+    projection; the former least-squares start stopped at y = -5.7e-5)."""
+    from daekit.ocp.guess import make_guess
+
+    prob = betts_pendulum_ocp(initial_all=False).compile()
+    X, _, _ = make_guess(prob, None).fun(np.array([0.0]))
+    got = dict(zip(prob.aug.x_names, X[:, 0], strict=True))
+    exact = {"x": 1.0, "y": 0.0, "der(x)": 0.0, "der(y)": 0.0}
+    assert max(abs(got[k] - v) for k, v in exact.items()) <= 1e-12
+
+
 @pytest.mark.parametrize("initial_all", [True, False])
 def test_betts_pendulum_from_the_index3_model(initial_all):
     sol = betts_pendulum(initial_all).solve()

@@ -778,6 +778,20 @@ def test_condition_contradicting_the_invariants_alone_is_not_vetoed_but_named():
 betts_pendulum = betts_pendulum_ocp
 
 
+def test_default_guess_starts_at_the_exact_consistent_point():
+    """Betts 10.103 with only its two independent initial values (x = 1, der(y) = 0): the
+    default guess starts at the one consistent point, x = 1, y = 0 (the unit circle),
+    der(x) = 0 (the velocity invariant x der(x) + y der(y) = 0), der(y) = 0, to roundoff (a
+    projection; the former least-squares start stopped at y = -5.7e-5)."""
+    from daekit.ocp.guess import make_guess
+
+    prob = betts_pendulum_ocp(initial_all=False).compile()
+    X, _, _ = make_guess(prob, None).fun(np.array([0.0]))
+    got = dict(zip(prob.aug.x_names, X[:, 0], strict=True))
+    exact = {"x": 1.0, "y": 0.0, "der(x)": 0.0, "der(y)": 0.0}
+    assert max(abs(got[k] - v) for k, v in exact.items()) <= 1e-12
+
+
 @pytest.mark.parametrize("initial_all", [True, False])
 def test_betts_pendulum_from_the_index3_model(initial_all):
     sol = betts_pendulum(initial_all).solve()
@@ -910,9 +924,10 @@ def _structured_problems():
 
 @pytest.mark.parametrize("case", [0, 1, 2])
 def test_closed_form_collocation_derivatives_match_casadi_ad(case):
-    """The collocation's constraint Jacobian and Lagrangian Hessian in closed form (per-point
-    model derivatives scattered into place, daekit.ocp.collocation.STRUCTURED) equal CasADi's
-    AD of the same NLP at random points and multipliers."""
+    """The collocation's constraint Jacobian, Lagrangian Hessian and objective gradient in
+    closed form (per-point model derivatives scattered into place,
+    daekit.ocp.collocation.STRUCTURED) equal CasADi's AD of the same NLP at random points and
+    multipliers."""
     from daekit.ocp.boundary import analyze
     from daekit.ocp.collocation import transcribe
     from daekit.ocp.guess import make_guess
@@ -927,24 +942,31 @@ def test_closed_form_collocation_derivatives_match_casadi_ad(case):
     lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", G.numel())
     jac_ad = ca.Function("j", [V], [ca.jacobian(G, V)])
     hess_ad = ca.Function("h", [V, lf, lg], [ca.triu(ca.hessian(lf * J + ca.dot(lg, G), V)[0])])
+    grad_ad = ca.Function("gf", [V], [J, ca.gradient(J, V)])
+    assert tr.derivatives["grad_f"].sparsity_out(1).is_dense()  # IPOPT reads it as dense
     rng = np.random.default_rng(1)
     for _ in range(2):
         v = rng.standard_normal(V.numel())
         lam = rng.standard_normal(G.numel())
         g_cf, J_cf = tr.derivatives["jac_g"](v, [])
         H_cf = tr.derivatives["hess_lag"](v, [], 0.7, lam)
+        f_cf, gf_cf = tr.derivatives["grad_f"](v, [])
         J_ref, H_ref = jac_ad(v), hess_ad(v, 0.7, lam)
+        f_ad, gf_ref = grad_ad(v)
         g_ad = ca.Function("g", [V], [G])(v)
         assert np.allclose(np.asarray(g_cf).ravel(), np.asarray(g_ad).ravel())
-        for A, R in ((J_cf, J_ref), (H_cf, H_ref)):
+        assert abs(float(f_cf) - float(f_ad)) <= 1e-12 * max(1.0, abs(float(f_ad)))
+        for A, R in ((J_cf, J_ref), (H_cf, H_ref), (gf_cf, gf_ref)):
             A, R = np.asarray(ca.densify(A)), np.asarray(ca.densify(R))
             assert np.max(np.abs(A - R)) <= 1e-10 * max(1.0, np.max(np.abs(R)))
 
 
-def test_quadratic_composite_derivatives_match_casadi_ad():
+@pytest.mark.parametrize("as_residuals", [False, True])
+def test_quadratic_composite_derivatives_match_casadi_ad(as_residuals):
     """The blend's closed-form derivatives (f quadratic in (V, Q), g linear in Q, Q a model
     mapped over points: daekit.ocp.derivatives.quadratic_composite) equal CasADi's AD of the
-    composed NLP at random points and multipliers."""
+    composed NLP at random points and multipliers; also with f given as |r|^2 + c (the
+    constant Hessian from the residuals' Jacobian)."""
     from daekit.ocp.derivatives import quadratic_composite
 
     rng = np.random.default_rng(2)
@@ -955,12 +977,15 @@ def test_quadratic_composite_derivatives_match_casadi_ad():
     V = ca.MX.sym("V", K * ny)
     Q = ca.MX.sym("Q", 3, K)
     A, Bm = rng.standard_normal((5, K * ny)), rng.standard_normal((5, 3 * K))
-    f = ca.sumsqr(ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1) + ca.sum2(Q[2, :])
+    r = ca.mtimes(A, V) + ca.mtimes(Bm, ca.vec(Q)) - 1
+    c = ca.sum2(Q[2, :]) + 0.5 * V[1]
+    f = ca.sumsqr(r) + c
     g = ca.vec(Q[:2, 1:])
     pts = np.arange(K * ny).reshape(K, ny)
     ts = ca.DM(np.linspace(0, 1, K)).T
     f_r, g_r, opts = quadratic_composite(V, Q, f, g, q, y, [t, y], (ts, ca.reshape(V, ny, K)),
-                                         pts)
+                                         pts, residuals=(r, c) if as_residuals else None)
+    assert opts["grad_f"].sparsity_out(1).is_dense()  # IPOPT reads it as dense
     lf, lg = ca.MX.sym("lf"), ca.MX.sym("lg", g.numel())
     ref = ca.Function("ref", [V, lf, lg], [ca.gradient(f_r, V), ca.jacobian(g_r, V),
                                            ca.triu(ca.hessian(lf * f_r + ca.dot(lg, g_r), V)[0])])

@@ -176,7 +176,7 @@ def augment(r: ReducedDAE) -> Augmented:
     u_new = ca.vertcat(*u_sub) if r.nu else ca.SX(0, 1)
 
     def sub(e: ca.SX) -> ca.SX:
-        if r.nu == 0 or e.numel() == 0:
+        if r.nu == 0 or e.numel() == 0 or not chains:  # no chain: u is its own substitute
             return e
         return ca.substitute([e], [r.u], [u_new])[0]
 

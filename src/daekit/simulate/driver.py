@@ -323,20 +323,19 @@ class Driver:
 
     def _attempt(self, system: System, grid, x, z, first: bool = False):
         """Run ``grid`` from ``(x, z)``: with a step budget per grid interval from the
-        consistent values (no IDACalcIC: ``xdot0`` from the equations and IDAS's own first-step
-        rule, issue 8 item 6), at the very start of an index-1 run then with IDAS's own
-        consistent initialization, then excluding the algebraic unknowns from the error test;
-        without monitors a last attempt gets the full budget. A failing attempt gives up
-        early: grid intervals are short (check points), the budget is
-        ``System.first_budget`` steps per interval."""
+        consistent values (at the very start: IDAS's own consistent initialization first),
+        then excluding the algebraic unknowns from the error test; without monitors a last
+        attempt gets the full budget. A failing attempt gives up early: grid intervals are
+        short (check points), the budget is ``System.first_budget`` steps per interval."""
         user_budget = "max_num_steps" in system.options
         # the budget per grid interval (a plain run's 16 check points: four times the budget
         # of the 64 it used to have, the same total)
         per = System.first_budget * (4 if not self.monitors and self.checks <= 16 else 1)
         budget = {} if user_budget else {"max_num_steps": per}
-        tries: list[tuple[dict, bool]] = [(budget, True)]
+        tries: list[tuple[dict, bool]] = []
         if first and system.r.index < 2:
             tries.append((budget, False))  # IDACalcIC (CasADi's default start)
+        tries.append((budget, True))
         if "suppress_algebraic" not in system.options:
             tries.append(({**budget, "suppress_algebraic": True,
                            "step0": 1e-12 * max(1.0, self.span)}, True))

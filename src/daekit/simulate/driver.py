@@ -334,7 +334,13 @@ class Driver:
         budget = {} if user_budget else {"max_num_steps": per}
         tries: list[tuple[dict, bool]] = []
         if first and system.r.index < 2:
-            tries.append((budget, False))  # IDACalcIC (CasADi's default start)
+            # IDACalcIC first (CasADi's default start, as in an expert's raw IDAS): from
+            # consistent values it converges at once and the integrator is reused for every
+            # initial state. The consistent start (``init_xdot``, ``step0``) is a CasADi
+            # construction option: a new integrator per initial state, measured +1.6 ms (27 %)
+            # per ensemble sample of the 3D pendulum for the same steps on average (1330
+            # against 1337 over 200 samples); it stays the fallback (the slider crank)
+            tries.append((budget, False))
         tries.append((budget, True))
         if "suppress_algebraic" not in system.options:
             tries.append(({**budget, "suppress_algebraic": True,

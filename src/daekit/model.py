@@ -849,7 +849,71 @@ class Model:
             cache[order] = (J, cols)
         return cache[order]
 
-    def memo(self, key: str, make):
+    def system_jacobian(self, c, d) -> ca.SX:
+        """Pryce's system Jacobian for the offsets ``c`` (equations) and ``d`` (unknowns) as a
+        symbolic sparse ``n x n`` matrix: ``J_ij = dF_i / dx_j^(d_j - c_i)`` (with
+        ``d_j - c_i >= sigma_ij``, its nonzeros are the entries where ``sigma_ij = d_j - c_i``;
+        it is also ``dF_i^(c_i) / dx_j^(d_j)``, without differentiating anything). One
+        Jacobian per distinct offset ``c_i``; made once per ``(c, d)`` until the model changes
+        (analysis, reduction and the elimination of explicit derivatives share it).
+
+        >>> import daekit as dk
+        >>> m = dk.examples.pendulum_planar(); s = m.sigma()
+        >>> J = m.system_jacobian(s.c, s.d)
+        >>> J.shape, J.nnz()
+        ((3, 3), 6)
+        """
+        c = np.asarray(c, dtype=np.int64)
+        d = np.asarray(d, dtype=np.int64)
+        key = ("system_jacobian", c.tobytes(), d.tobytes())
+        return self.memo(key, lambda: self._system_jacobian(c, d))
+
+    def _system_jacobian(self, c: np.ndarray, d: np.ndarray) -> ca.SX:
+        n_e, n_u = self.n_equations, self.n_unknowns
+        F = self.residual
+        rows_all, cols_all, parts = [], [], []
+        inc = self.incidence()
+        orders = np.unique((d[inc.cols] - c[inc.rows])[inc.vals == d[inc.cols] - c[inc.rows]])
+        have = self._cache.get("residual_jacobian", {})
+        if all(int(o) in have for o in orders):
+            # the analysis has made the residual's Jacobians by order: their tight entries
+            # (x_j^(o) in F_i with d_j - c_i = o), no new differentiation
+            for o in orders.tolist():
+                J, cols_o = have[o]
+                r, cc = J.sparsity().get_triplet()
+                r = np.asarray(r, dtype=np.int64)
+                cj = np.asarray(cols_o, dtype=np.int64)[np.asarray(cc, dtype=np.int64)]
+                sel = np.nonzero(d[cj] - c[r] == o)[0]
+                if sel.size:
+                    rows_all.append(r[sel])
+                    cols_all.append(cj[sel])
+                    parts.append(J.nz[sel.tolist()])
+            cvs = []
+        else:
+            cvs = np.unique(c).tolist()
+        for cv in cvs:
+            rows = np.nonzero(c == cv)[0]
+            cols = np.nonzero(d >= cv)[0]
+            if not rows.size or not cols.size:
+                continue
+            Fr = F if rows.size == n_e else F[rows.tolist()]
+            J = ca.jacobian(Fr, self.symbols_at(cols, d[cols] - cv))
+            r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
+            if not r:
+                continue
+            rows_all.append(rows[np.asarray(r, dtype=np.int64)])
+            cols_all.append(cols[np.asarray(cc, dtype=np.int64)])
+            parts.append(J.nz[:])
+        if not parts:
+            return ca.SX(n_e, n_u)
+        R = np.concatenate(rows_all)
+        C = np.concatenate(cols_all)
+        nz = ca.vertcat(*[ca.vec(p) for p in parts])
+        order = np.lexsort((R, C))  # the column-major order of the assembled matrix
+        sparsity = ca.Sparsity.triplet(n_e, n_u, R[order].tolist(), C[order].tolist())
+        return ca.SX(sparsity, nz[order.tolist()])
+
+    def memo(self, key, make):
         """``make()``, computed once and kept until the model changes (for values built from
         the model that several steps need, e.g. the expansion by Pryce's offsets).
 

@@ -770,18 +770,23 @@ class _JacobianAt:
     :meth:`daekit.Model.residual_jacobian`): ``jac(pt)`` is the numeric sparse matrix; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
 
-    def __init__(self, model: Model, rows, cols, orders) -> None:
+    def __init__(self, model: Model, rows, cols, orders, source: ca.SX | None = None) -> None:
         self.model = model
         self.rows = np.asarray(rows, dtype=np.int64)
         self.cols = np.asarray(cols, dtype=np.int64)
         orders = np.asarray(orders, dtype=np.int64)
+        if source is not None:  # every entry from this one (n_equations x n_unknowns) matrix
+            orders = np.zeros(self.rows.size, dtype=np.int64)
         th = model.t.element_hash()
         n_unk = model.n_unknowns
         parts, take = [], []
         nnz = 0
         for order in np.unique(orders):
             sel = np.nonzero(orders == order)[0]
-            J, cols_k = model.residual_jacobian(int(order))
+            if source is not None:
+                J, cols_k = source, np.arange(n_unk, dtype=np.int64)
+            else:
+                J, cols_k = model.residual_jacobian(int(order))
             r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
             keys = np.asarray(r, dtype=np.int64) * n_unk + cols_k[np.asarray(cc, dtype=np.int64)]
             order_of = np.argsort(keys, kind="stable")
@@ -819,6 +824,23 @@ class _JacobianAt:
                              shape=(model.n_equations, model.n_unknowns))
 
 
+def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
+    """Pryce's system Jacobian for the offsets ``(c, d)`` as a :class:`_JacobianAt` on the
+    pattern of the Sigma matrix's tight entries (``sigma_ij = d_j - c_i``): its values from
+    :meth:`daekit.Model.system_jacobian`; made once per model and offsets (analysis and
+    reduction evaluate it at their points)."""
+    c = np.asarray(c, dtype=np.int64)
+    d = np.asarray(d, dtype=np.int64)
+
+    def make() -> _JacobianAt:
+        inc = model.incidence()
+        keep = inc.vals == d[inc.cols] - c[inc.rows]
+        return _JacobianAt(model, inc.rows[keep], inc.cols[keep], inc.vals[keep],
+                           source=model.system_jacobian(c, d))
+
+    return model.memo(("system_jacobian_at", c.tobytes(), d.tobytes()), make)
+
+
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
     """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
@@ -842,27 +864,38 @@ def system_jacobian_singular(model: Model, c: np.ndarray, d: np.ndarray, seed: i
     >>> system_jacobian_singular(m, sig.c, sig.d)
     ['a', 'b']
     """
-    inc = model.incidence()
-    c, d = np.asarray(c), np.asarray(d)
-    keep = inc.vals == d[inc.cols] - c[inc.rows]
-    jac_at = _JacobianAt(model, inc.rows[keep], inc.cols[keep], inc.vals[keep])
+    c, d = np.asarray(c, dtype=np.int64), np.asarray(d, dtype=np.int64)
+    key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
+           model.parameter_values.tobytes())
+    memos = model.memo("results", dict)  # kept until the model changes
+    if key in memos:  # analyze has decided it at this point (or an earlier call)
+        out = memos[key]
+        return list(out) if out is not None else None
     pt = _Point(model, None, seed)
     try:
-        jac = jac_at(pt)
+        jac = system_jacobian_at(model, c, d)(pt)
     except _NonFinite:
         return None
+    bad = _singular_system_blocks(model, jac)
+    memos[key] = bad
+    return list(bad) if bad is not None else None
+
+
+def _singular_system_blocks(model: Model, jac: sp.csr_matrix) -> list[str] | None:
+    """The equations (in model order) of the singular diagonal blocks of the system
+    Jacobian's value ``jac``, or None (see :func:`system_jacobian_singular`)."""
     coo = jac.tocoo()
     n = model.n_equations
     m_ = dulmage_mendelsohn(n, n, coo.row, coo.col)
     if not m_.is_square_nonsingular:
         return None  # structurally singular: the structural analysis says so itself
     names = model.equation_names
-    bad: list[str] = []
+    bad: list[int] = []
     for br, bc in block_triangular(n, coo.row, coo.col, m_.row_match):
         ch = _rank_check(jac, br, bc)
         if ch.rank < ch.size:
-            bad += [names[i] for i in ch.rows]
-    return bad or None
+            bad += ch.rows
+    return [names[i] for i in sorted(bad)] or None
 
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
@@ -942,11 +975,15 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     ex = expand(model, validate=False) if consistent else None
     # F_i^(k), k <= c_i: the points are made consistent with these
     expansion = ca.vertcat(*ex.levels) if consistent else None
-    jrows, jcols, jvals = inc.rows[keep], inc.cols[keep], inc.vals[keep]
+    jvals = inc.vals[keep]
 
     eq_lab, unk_lab = _components(inc)
 
-    jac_at = _JacobianAt(model, jrows, jcols, jvals)  # made once for every test point
+    highest = np.zeros(n, dtype=np.int64)
+    np.maximum.at(highest, inc.cols, inc.vals)
+    for order in np.unique(np.r_[jvals, highest]).tolist():
+        model.residual_jacobian(order)  # for the easy test; the system Jacobian's entries too
+    jac_at = system_jacobian_at(model, c, d)  # made once for every test point (and reduce)
 
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
@@ -957,6 +994,11 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         jd = jac.toarray() if n <= EASY_DENSE_LIMIT else jac  # small: dense block slices
         checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
+        if pt.point is None and pt.attempt == 0:  # system_jacobian_singular's own point
+            key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
+                   model.parameter_values.tobytes())
+            model.memo("results", dict)[key] = (
+                [eq_names[i] for i in sorted(int(i) for b in sing0 for i in b)] or None)
         if sing0:  # too big for the derivative array: say so before any further work
             _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
                            [eq_names[i] for b in sing0 for i in b])

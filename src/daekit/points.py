@@ -341,10 +341,6 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
     return st
 
 
-def _dense(J) -> np.ndarray:
-    return J.toarray() if sp.issparse(J) else np.asarray(J, dtype=float)
-
-
 def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
     """Starts of Gauss--Newton for :func:`_solve`, tried in turn. ``fresh``: which values of
     ``w0`` were drawn at random (the others were solved for before, e.g. the lower levels of a
@@ -358,9 +354,9 @@ def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
       at ``1e9`` and its derivatives at ``1e19`` in the derivative array) or stalled; the column
       factors carry the units (a column of ``c x`` gets ``~1/c``), so the first start does not
       depend on them.
-    * Some drawn (a new level of a derivative array on the last level's point): the drawn
-      values first solved for alone, the others held (least squares: the new highest
-      derivatives enter the new rows linearly), then everything from there; then ``w0``.
+    * Some drawn (a new level of a derivative array on the last level's point): ``w0`` as
+      it is. (Solving first for the drawn values alone, the others held, led Gauss--Newton
+      onto the singular branch ``x2 = 0`` of lecture L6.)
     """
     if not fresh.any() or w0.size == 0:
         yield w0
@@ -380,18 +376,6 @@ def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
             yield ws
         yield w0
         return
-    idx = np.nonzero(fresh)[0]
-
-    def sub(v):
-        w = w0.copy()
-        w[idx] = v
-        return w
-
-    v, _ = gauss_newton(lambda v: fun(sub(v)), w0[idx], max_iter=3,
-                        jac=lambda v: _dense(jac(sub(v)))[:, idx] if _is_dense(w0.size, 0)
-                        else sp.csc_matrix(jac(sub(v)))[:, idx])
-    if np.all(np.isfinite(v)):
-        yield sub(v)
     yield w0
 
 

@@ -233,13 +233,37 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
                              np.bincount(cols, vals, minlength=n)])
         sol = np.linalg.solve(K, b)
         return sol[:m], sol[m:]
-    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
-    rc = np.bincount(rows, minlength=m).astype(float)
-    cc = np.bincount(cols, minlength=n).astype(float)
-    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-    sol = sp.linalg.spsolve(K, b)
+    sol = _curtis_reid_factor(m, n, rows, cols).solve(b)
     return sol[:m], sol[m:]
+
+
+_CR = threading.local()  # factorizations of Curtis--Reid's normal equations, per pattern
+#: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
+#: Jacobian of one pattern at every iterate.
+CR_PATTERNS = 4
+
+
+def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
+    """SuperLU factorization of Curtis--Reid's normal equations for the nonzeros ``(rows,
+    cols)`` of an ``m x n`` matrix (they depend on the pattern only, not on the values), kept
+    for the last ``CR_PATTERNS`` patterns of this thread."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    key = (m, n, rows.tobytes(), cols.tobytes())
+    cache = _CR.__dict__.setdefault("lu", {})
+    lu = cache.get(key)
+    if lu is None:
+        k = rows.size
+        P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
+        rc = np.bincount(rows, minlength=m).astype(float)
+        cc = np.bincount(cols, minlength=n).astype(float)
+        K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+        lu = sp.linalg.splu(K, permc_spec="COLAMD")
+        if len(cache) >= CR_PATTERNS:
+            cache.pop(next(iter(cache)))
+        cache[key] = lu
+    return lu
 
 
 def equilibrated(A):

@@ -514,6 +514,8 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
         # the equation replaced: offset theta, from the singular block where possible
         cand = [int(i) for i in I if ex.c[i] == theta]
         l = next((i for i in cand if i in set(block_rows)), cand[0])
+        if u[l] < 0:  # the replaced equation keeps its sign (the null vector's is arbitrary)
+            u = -u
         F = work.residual
         parts, terms = [], []
         for i in I:

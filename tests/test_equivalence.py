@@ -35,6 +35,8 @@ import pytest
 import daekit as dk
 
 FAST_CASES = 8
+#: Share of the generated cases enlarged to 36..60 unknowns (see :func:`generate`).
+BIG_SHARE = 0.2
 #: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``, every case simulated,
 #: at commit "reduced_consistent_point: a fifth start"): analyze right on 487, wrong on 13
 #: (all with units of variables or an equation times 1.5 + sin(unknown) / plus an unknown times
@@ -93,6 +95,19 @@ def generate(seed: int, transform: bool = True) -> Case:
         n_ode = int(rng.integers(0, 13))
     if sum(chains) + n_ode < 2:
         n_ode = 1
+    # a share BIG_SHARE of the cases are enlarged to 36..60 unknowns by more chains and ODE
+    # blocks, drawn from a second stream (the other cases are the models of the 35-unknown
+    # generator, unchanged)
+    rng2 = np.random.default_rng([seed, 60])
+    extra_chains, extra_ode = [], 0
+    if rng2.random() < BIG_SHARE:
+        target = int(rng2.integers(36, 61))
+        total = sum(chains) + n_ode
+        while len(extra_chains) < 4 and total + K <= target and rng2.random() < 0.6:
+            k = int(rng2.integers(1, K + 1))
+            extra_chains.append(k)
+            total += k
+        extra_ode = target - total
     m = dk.Model(f"manufactured_{seed}")
     t = m.t
     scale_vars = transform and rng.random() < 0.5
@@ -101,18 +116,19 @@ def generate(seed: int, transform: bool = True) -> Case:
     phys: list = []  # physical values (SX) of the unknowns, for coupling and multiples
     ode_states = []
 
-    def unit():
-        return float(10 ** rng.uniform(-6, 6)) if scale_vars else 1.0
+    def unit(r_=rng):
+        return float(10 ** r_.uniform(-6, 6)) if scale_vars else 1.0
 
     # ODE blocks
     ys = []
-    for b in range(n_ode):
-        s = unit()
+    for b in range(n_ode + extra_ode):
+        r_ = rng if b < n_ode else rng2
+        s = unit(r_)
         yv = m.state(f"y{b}")
         y, dy = s * yv, s * m.der(yv)
-        ystar = _trig(2.0 + rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.5, 2),
-                      rng.uniform(0, 6))
-        a_, b_ = rng.uniform(0.5, 2.0), rng.uniform(-0.5, 0.5)
+        ystar = _trig(2.0 + r_.uniform(0, 1), r_.uniform(0.2, 0.8), r_.uniform(0.5, 2),
+                      r_.uniform(0, 6))
+        a_, b_ = r_.uniform(0.5, 2.0), r_.uniform(-0.5, 0.5)
         e = (dy - ystar(t, 1, True) + a_ * (y - ystar(t, 0, True))
              + b_ * (ca.sin(y) - ca.sin(ystar(t, 0, True))))
         eqs.append((f"ode{b}", e))
@@ -122,26 +138,27 @@ def generate(seed: int, transform: bool = True) -> Case:
         ode_states.append(f"y{b}")
     # chains
     chain_x1 = []
-    for c, k in enumerate(chains):
-        g = _trig(1.0 + rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.5, 1.5),
-                  rng.uniform(0, 6))
+    for c, k in enumerate(chains + extra_chains):
+        r_ = rng if c < len(chains) else rng2
+        g = _trig(1.0 + r_.uniform(0, 1), r_.uniform(0.2, 0.8), r_.uniform(0.5, 1.5),
+                  r_.uniform(0, 6))
         xs, dxs = [], []
         for i in range(k - 1):
-            s = unit()
+            s = unit(r_)
             xv = m.state(f"x{c}_{i}")
             xs.append(s * xv)
             dxs.append(s * m.der(xv))
             exact[f"x{c}_{i}"] = (lambda tt, i=i, g=g, s=s: g(tt, i) / s)
-        s = unit()
+        s = unit(r_)
         zv = m.algebraic(f"z{c}")
         zz = s * zv
         exact[f"z{c}"] = (lambda tt, g=g, k=k, s=s: g(tt, k - 1) / s)
 
-        def coupling():
-            if not ys or rng.random() < 0.5:
+        def coupling(r_=r_):
+            if not ys or r_.random() < 0.5:
                 return 0
-            y, ystar = ys[int(rng.integers(len(ys)))]
-            return rng.uniform(-1, 1) * (y - ystar(t, 0, True))
+            y, ystar = ys[int(r_.integers(len(ys)))]
+            return r_.uniform(-1, 1) * (y - ystar(t, 0, True))
 
         chain = xs + [zz]
         for i in range(k - 1):
@@ -164,7 +181,7 @@ def generate(seed: int, transform: bool = True) -> Case:
         eqs, transforms = _transform(rng, eqs, phys, transforms)
     for name, e in eqs:
         m.equation(e, name=name)
-    return Case(seed, m, K, n_ode, exact, ode_states, transforms)
+    return Case(seed, m, K, n_ode + extra_ode, exact, ode_states, transforms)
 
 
 def _transform(rng, eqs, phys, transforms):

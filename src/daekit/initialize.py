@@ -1255,6 +1255,13 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
 
     nz = Jc.shape[1] - nx
     n_alg = r.nz if r.alg.numel() == r.nz else int(r.alg.numel())
+    # in the coordinates of the equilibrated Jc (ranks and pivots below are scale-invariant,
+    # and there an entry of the Schur complement below 1e-10 is rounding residue whatever
+    # the units: the dummy-derivative pendulum's invariant, a copy of one of its algebraic
+    # equations, left 9e-17 where J_inv,x and the computed inverse's entries are 0 too, and
+    # der(y) was reported dependent on y at some points: dof 1, not 2)
+    er, ec = equilibrate(Jc)
+    Jc = Jc * er[:, None] * ec[None, :]
     Ja, Ji = Jc[:n_alg], Jc[n_alg:]
     if Ji.shape[0] == 0 or nx == 0:
         return set(r.x_names)
@@ -1271,7 +1278,8 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
             Y = dc[:, None] * np.linalg.lstsq(Bz, Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
         T = Ji[:, nx:] @ Y
         Jred = Ji[:, :nx] - T
-        Jred[np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T))] = 0.0
+        Jred[(np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T)))
+             | (np.abs(Jred) <= 1e-10)] = 0.0
     else:
         Jred = Ji[:, :nx].copy()
     if regular or not nz:

@@ -114,6 +114,9 @@ class TestPoint:
         self.rng = np.random.default_rng(seed + 7919 * attempt)
         self.draw = DRAWS[attempt % len(DRAWS)]
         self.values: dict[int, float] = {}  # element hash -> value
+        #: element hashes whose values were drawn at random and not solved for since
+        #: (:func:`make_consistent` starts them in the Jacobian's own units)
+        self.drawn: set[int] = set()
         point = check_point(model, point)
         self.given: set[int] = set()  # element hashes the user gave
         self.t = point["t"][0] if "t" in point else float(self._random(1)[0])
@@ -144,6 +147,7 @@ class TestPoint:
         for h in hashes:
             if h not in vals:
                 vals[h] = float(self._random(1)[0])
+                self.drawn.add(h)
         return np.fromiter((vals[h] for h in hashes), dtype=float, count=len(hashes))
 
     def sibling(self, k: int) -> TestPoint:
@@ -183,7 +187,9 @@ class TestPoint:
 
     def assign(self, syms, vals) -> None:
         for s, v in zip(syms, vals, strict=True):
-            self.values[s.element_hash()] = float(v)
+            h = s.element_hash()
+            self.values[h] = float(v)
+            self.drawn.discard(h)
 
     def sparse(self, expr: ca.SX) -> sp.csr_matrix:
         """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix
@@ -326,10 +332,51 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
         def jac(w):
             return fj(pt.t, fv, w)
 
-    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter, jac=jac)
-    if st.consistent:
-        pt.assign(syms, w)
+    fresh = np.fromiter((h in pt.drawn for h in key), dtype=bool, count=len(key))
+    for start in _starts(fun, jac, w0, fresh):
+        w, st = gauss_newton(fun, start, tol=tol, max_iter=max_iter, jac=jac)
+        if st.consistent:
+            pt.assign(syms, w)
+            break
     return st
+
+
+def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
+    """Starts of Gauss--Newton for :func:`_solve`, tried in turn. ``fresh``: which values of
+    ``w0`` were drawn at random (the others were solved for before, e.g. the lower levels of a
+    derivative array).
+
+    * All drawn: first the draws *in the Jacobian's own units*, ``w_j = dc_j r_j`` with
+      ``dc`` the column factors of the equilibrated Jacobian at that start (three rounds, the
+      fixed point of a nonlinear model's scaling), then the draws as they are. A draw of
+      ``U(0.1, 0.3)`` in a variable's unit of ``1e-6`` is ``2e5`` physically: Gauss--Newton
+      from there spread the correction of such a row over the free values (an ODE state
+      at ``1e9`` and its derivatives at ``1e19`` in the derivative array) or stalled; the column
+      factors carry the units (a column of ``c x`` gets ``~1/c``), so the first start does not
+      depend on them.
+    * Some drawn (a new level of a derivative array on the last level's point): ``w0`` as
+      it is. (Solving first for the drawn values alone, the others held, led Gauss--Newton
+      onto the singular branch ``x2 = 0`` of lecture L6.)
+    """
+    if not fresh.any() or w0.size == 0:
+        yield w0
+        return
+    if fresh.all():
+        ws = w0
+        for _ in range(3):
+            J = jac(ws)
+            if not np.all(np.isfinite(J.data if sp.issparse(J) else J)):
+                break
+            dc = equilibrate(J)[1]
+            nxt = dc * w0
+            if np.array_equal(nxt, ws):
+                break
+            ws = nxt
+        if ws is not w0:
+            yield ws
+        yield w0
+        return
+    yield w0
 
 
 def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
@@ -355,6 +402,7 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
         if st2.consistent:
             for h, v in alt.values.items():
                 pt.values[h] = v
+            pt.drawn = (pt.drawn - alt.values.keys()) | alt.drawn
             pt.status = st = st2
         k += 1
     return st

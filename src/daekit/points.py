@@ -42,7 +42,7 @@ from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
-           "gauss_newton", "reduced_consistent_point", "DRAWS"]
+           "gauss_newton", "reduced_consistent_point", "remember_consistent", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -606,20 +606,44 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     return sol[:n]
 
 
-def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
-                             jac_alg: ca.SX | None = None):
-    """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
-    holds (time and inputs random, parameters at their values), or None when Gauss--Newton
-    finds none from ``starts`` random starts.
+def remember_consistent(model, pt: TestPoint) -> None:
+    """Keep the values of the consistent point ``pt`` of ``model`` (the equations and their
+    derivatives up to Pryce's offsets hold there: :func:`daekit.analyze`'s point) on the
+    model until it changes, for :func:`reduced_consistent_point` of its reduced systems (a
+    start that is consistent already: one check instead of a Gauss--Newton solve)."""
+    if pt.status is None or not pt.status.consistent:
+        return
+    model.memo("results", dict)["consistent_point"] = (
+        float(pt.t), dict(pt.values), np.asarray(model.parameter_values, dtype=float).copy())
 
-    >>> import casadi as ca, numpy as np
-    >>> import daekit as dk
-    >>> r = dk.reduce_index(dk.examples.l3())
-    >>> t, x, z, u, p = reduced_consistent_point(r)
-    >>> bool(abs(ca.Function("c", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(t, x, z, u, p)[0]) < 1e-10)
-    True
-    """
-    rng = np.random.default_rng(seed + 31)
+
+def _remembered_start(r):
+    """``(t, w, u)`` of the remembered consistent point of ``r.model`` in the symbols of
+    ``r`` (``w = (x, z)``), or None (none kept, other parameter values, a symbol it lacks)."""
+    model = getattr(r, "model", None)
+    if model is None or not hasattr(model, "memo"):
+        return None
+    got = model.memo("results", dict).get("consistent_point")
+    if got is None:
+        return None
+    t, values, pv = got
+    if pv.shape != np.shape(r.p_values) or not np.array_equal(pv, np.asarray(r.p_values, float)):
+        return None
+    w = ca.vertcat(r.x, r.z)
+    if not (w.is_valid_input() and (r.u.numel() == 0 or r.u.is_valid_input())):
+        return None
+    out = []
+    for v in (w, r.u):
+        hashes = [e.element_hash() for e in ca.vertsplit(v)] if v.numel() else []
+        if any(h not in values for h in hashes):
+            return None
+        out.append(np.array([values[h] for h in hashes], dtype=float))
+    return t, out[0], out[1]
+
+
+def _reduced_point_functions(r, jac_alg: ca.SX | None):
+    """The functions of :func:`reduced_consistent_point` for ``r`` (made once per system):
+    ``(f, jac)`` of ``G = [alg; invariants]`` in ``(t, u, w, p)``."""
     n = r.nx + r.nz
     alg = ca.vec(ca.SX(r.alg))
     inv = ca.vec(ca.SX(r.invariants)) if r.invariants.numel() else ca.SX(0, 1)
@@ -639,8 +663,35 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
     f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
     fj = SparseFunction([t_s, u_s, w, p_s], J)
-    jac = fj.dense if _is_dense(n, G.numel()) else fj
+    return f, (fj.dense if _is_dense(n, G.numel()) else fj)
+
+
+def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
+                             jac_alg: ca.SX | None = None, remembered: bool = False):
+    """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
+    holds (time and inputs random, parameters at their values), or None when Gauss--Newton
+    finds none from ``starts`` random starts. ``remembered``: first from the consistent point
+    the analysis of ``r.model`` kept (:func:`remember_consistent`; with ``t`` None), which
+    satisfies the equations already where the reduction only rearranged them.
+
+    >>> import casadi as ca, numpy as np
+    >>> import daekit as dk
+    >>> r = dk.reduce_index(dk.examples.l3())
+    >>> t, x, z, u, p = reduced_consistent_point(r)
+    >>> bool(abs(ca.Function("c", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(t, x, z, u, p)[0]) < 1e-10)
+    True
+    """
+    rng = np.random.default_rng(seed + 31)
+    n = r.nx + r.nz
+    f, jac = r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, jac_alg))
     pv = np.asarray(r.p_values, dtype=float)
+    start = _remembered_start(r) if remembered and t is None else None
+    if start is not None:
+        tv, w0, uv = start
+        wv, st = gauss_newton(lambda x: f(tv, uv, x, pv)[0], w0,
+                              jac=lambda x: jac(tv, uv, x, pv))
+        if st.consistent:
+            return tv, wv[: r.nx], wv[r.nx:], uv, pv.copy()
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)

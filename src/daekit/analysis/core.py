@@ -42,7 +42,14 @@ from ..numerics import (
     sparse_deficiency_rcond,
     vanishing_removed,
 )
-from ..points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
+from ..points import (
+    DRAWS,
+    PointFunction,
+    TestPoint,
+    check_point,
+    consistent_point,
+    remember_consistent,
+)
 from ..structure import block_triangular, dulmage_mendelsohn, structural_index
 from ..structure.sigma import NoTransversal
 from ..threads import blas_threads, limit_blas_threads
@@ -1051,6 +1058,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
             if part is not None:
                 part = (confirmed[0], part[1])
         easy = _easy_test(model, pt)
+        remember_consistent(model, pt)  # a start for reduce_index's check at consistent points
         return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
                 pt.status, confirmed)
 

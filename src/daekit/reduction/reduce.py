@@ -705,7 +705,8 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
         return None
     bad = None
     for k in range(2):
-        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg)
+        # the first from the analysis's consistent point of the model where there is one
+        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg, remembered=k == 0)
         if cp is None:
             if bad is not None:  # singular at the one consistent point found: singular
                 return bad

@@ -33,6 +33,9 @@ __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name
            "select_name", "fit_elements", "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
+#: :meth:`Model.symbols_at` of at most this many symbols picks the scalar symbols themselves
+#: (one ``vertcat``) instead of indexing stacked columns (NumPy set-up costs more there).
+SMALL_SYMBOLS = 32
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
 _REF_RE = re.compile(
@@ -621,7 +624,12 @@ class Model:
     # ------------------------------------------------------------------ flattened views
     @property
     def unknown_variables(self) -> list[Variable]:
-        return [v for v in self.variables.values() if v.kind in UNKNOWN_KINDS]
+        """The unknowns' variables in declaration order (cached; do not mutate)."""
+        hit = self._cache.get("unknown_variables")
+        if hit is None:
+            hit = self._cache["unknown_variables"] = [
+                v for v in self.variables.values() if v.kind in UNKNOWN_KINDS]
+        return hit
 
     @property
     def controls(self) -> list[Variable]:
@@ -640,7 +648,11 @@ class Model:
 
     @property
     def unknown_names(self) -> list[str]:
-        return [v.element(i) for v, i in self.unknowns]
+        """Element names of the unknowns, ``"p[0]"``, ``"z"``, ... (cached; do not mutate)."""
+        hit = self._cache.get("unknown_names")
+        if hit is None:
+            hit = self._cache["unknown_names"] = [v.element(i) for v, i in self.unknowns]
+        return hit
 
     @property
     def n_unknowns(self) -> int:
@@ -705,6 +717,18 @@ class Model:
             )
         if not js.size:
             return ca.SX(0, 1)
+        if js.size <= SMALL_SYMBOLS:  # a few: the scalar symbols, one vertcat
+            unknowns = self.unknowns
+            elems: dict[tuple[int, int], list] = {}
+            out = []
+            for j, o in zip(js.tolist(), orders.tolist(), strict=True):
+                var, i = unknowns[j]
+                key = (j - i, o)
+                row = elems.get(key)
+                if row is None:
+                    row = elems[key] = self._order_elements(var, o)
+                out.append(row[i])
+            return ca.vertcat(*out)
         var_of, elem_of = self._unknown_arrays()
         variables = self.unknown_variables
         parts, base, pos = [], 0, np.empty(js.size, dtype=np.int64)

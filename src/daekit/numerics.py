@@ -36,12 +36,14 @@ Example
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg.lapack import dgesv as _dgesv
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
@@ -170,6 +172,9 @@ def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
     B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
     nz = B > 0
     L = np.log2(B, out=np.full(B.shape, -np.inf), where=nz)
+    rows, cols = np.nonzero(nz)
+    if rows.size <= TINY_EQUILIBRATE:
+        return _equilibrate_tiny(m, n, rows, cols, L[rows, cols])
     e = _ruiz_log(L, np.zeros(m), np.zeros(n))
     # entries below NOISE of both their row's and column's largest after Ruiz: ignored by
     # Curtis--Reid (see equilibrate)
@@ -181,6 +186,49 @@ def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
 
 
 _LOG2_NOISE = float(np.log2(NOISE))
+#: Dense matrices with at most this many nonzeros are equilibrated by plain Python loops over
+#: their nonzeros (the same arithmetic in the same order: the same factors, bit for bit),
+#: where NumPy's per-call overhead is most of the time (Gauss--Newton on a pendulum
+#: re-equilibrates a 5-by-7 Jacobian at every iterate).
+TINY_EQUILIBRATE = 48
+
+
+def _equilibrate_tiny(m: int, n: int, rows: np.ndarray, cols: np.ndarray, logs: np.ndarray):
+    """:func:`_equilibrate_dense` on the nonzeros ``(rows, cols)`` (row-major order) with log2
+    magnitudes ``logs``, in Python floats (IEEE arithmetic as NumPy's, Python's ``round`` is
+    NumPy's half-to-even)."""
+    rl, cl, lv = rows.tolist(), cols.tolist(), logs.tolist()
+    entries = list(zip(rl, cl, lv))
+    ninf = -math.inf
+
+    def ruiz(er: list, ec: list) -> tuple[list, list]:
+        for _ in range(RUIZ_ITERATIONS):
+            rmax = [ninf] * m
+            cmax = [ninf] * n
+            for i, j, v in entries:
+                s_ = v + er[i] + ec[j]
+                if s_ > rmax[i]:
+                    rmax[i] = s_
+                if s_ > cmax[j]:
+                    cmax[j] = s_
+            # -round(x / 2) is 0 for |x| <= 1 (half to even), as for x = -inf (a zero row)
+            fr = [0.0 if -1.0 <= x <= 1.0 or x == ninf else float(-round(0.5 * x))
+                  for x in rmax]
+            fc = [0.0 if -1.0 <= x <= 1.0 or x == ninf else float(-round(0.5 * x))
+                  for x in cmax]
+            if not (any(fr) or any(fc)):
+                break
+            er = [a + b for a, b in zip(er, fr)]
+            ec = [a + b for a, b in zip(ec, fc)]
+        return er, ec
+
+    er, ec = ruiz([0.0] * m, [0.0] * n)
+    keep = [k for k, (i, j, v) in enumerate(entries) if v + er[i] + ec[j] > _LOG2_NOISE]
+    kr = rows[keep] if keep else rows[:0]
+    kc = cols[keep] if keep else cols[:0]
+    lr, lc = _curtis_reid_log(m, n, kr, kc, logs[keep] if keep else logs[:0])
+    er, ec = ruiz(np.round(lr).tolist(), np.round(lc).tolist())
+    return np.exp2(np.array(er, dtype=float)), np.exp2(np.array(ec, dtype=float))
 
 
 def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
@@ -231,7 +279,10 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
                                       np.bincount(cols, minlength=n)]) + 1e-10
         b = -np.concatenate([np.bincount(rows, vals, minlength=m),
                              np.bincount(cols, vals, minlength=n)])
-        sol = np.linalg.solve(K, b)
+        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks
+        _, _, sol, info = _dgesv(K, b)
+        if info != 0:  # pragma: no cover - the ridge keeps K regular
+            sol = np.linalg.lstsq(K, b, rcond=None)[0]
         return sol[:m], sol[m:]
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
     sol = _curtis_reid_factor(m, n, rows, cols).solve(b)

@@ -31,6 +31,9 @@ class NoTransversal(ValueError):
 #: sparse linear assignment (LAPJVsp) takes over; each phase is linear in the entries, and
 #: DAEs need a few (3 for the planar chain at any size).
 PRIMAL_DUAL_PHASES = 40
+#: ... from this many equations on (below, SciPy's set-up for each phase costs more than the
+#: sparse linear assignment itself)
+PRIMAL_DUAL_MIN = 200
 
 
 def highest_value_transversal(n: int, rows, cols, vals) -> np.ndarray:
@@ -60,14 +63,17 @@ def highest_value_transversal(n: int, rows, cols, vals) -> np.ndarray:
     vals = np.asarray(vals, dtype=np.int64)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    t = _primal_dual_transversal(n, rows, cols, vals)
-    if t is not None:
-        return t
+    if n >= PRIMAL_DUAL_MIN:
+        t = _primal_dual_transversal(n, rows, cols, vals)
+        if t is not None:
+            return t
     return _assignment_transversal(n, rows, cols, vals)
 
 
 def _assignment_transversal(n: int, rows, cols, vals) -> np.ndarray:
     """:func:`highest_value_transversal` by SciPy's sparse linear assignment (LAPJVsp)."""
+    if vals.size == 0:
+        raise NoTransversal("the Sigma matrix has no entries")
     w = (vals.max() + 1 - vals).astype(float)
     a = sp.csr_matrix((w, (rows, cols)), shape=(n, n))
     try:

@@ -196,13 +196,15 @@ def _easy_test(model: Model, pt: _Point) -> EasyTest:
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     keep = inc.vals == highest[inc.cols]
-    jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
+    jac_at = model.memo("easy_jacobian_at", lambda: _JacobianAt(
+        model, inc.rows[keep], inc.cols[keep], inc.vals[keep]))  # made once per model
     eq_names = model.equation_names
     if n <= EASY_DENSE_LIMIT:
-        check = _rank_check(jac.toarray(), list(range(n)), list(range(n)))
+        check = _rank_check(jac_at.dense(pt), list(range(n)), list(range(n)))
         rank, rcond = check.rank, check.rcond
         names = [eq_names[i] for i in check.deficient_rows]
     else:
+        jac = jac_at(pt)
         coo = jac.tocoo()
         dm = dulmage_mendelsohn(n, n, coo.row, coo.col)
         if dm.is_square_nonsingular:
@@ -535,9 +537,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 v.append(var.der(r))
                 w.append(var.der(r + 1))
         levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
-        if not grown["first"]:
-            grown["first"] = ca.Function("level", ca.symvar(levels[0]), [levels[0]]).n_nodes()
-        grown["nodes"] = ca.Function("level", ca.symvar(levels[-1]), [levels[-1]]).n_nodes()
+        if not grown["first"]:  # (ca.n_nodes: the count of a Function's, without making one)
+            grown["first"] = ca.n_nodes(levels[0])
+        grown["nodes"] = ca.n_nodes(levels[-1])
         col_j.extend(cols)
         col_r.extend(int(mj) + k for mj in m)
         target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
@@ -817,18 +819,31 @@ class _JacobianAt:
         self.take = take
         self.n = len(self.rows)
 
-    def __call__(self, pt: _Point) -> sp.csr_matrix:
-        model = self.model
+        # the pattern in row-major order (as the CSR matrix's COO form lists it)
+        order = np.lexsort((self.cols, self.rows))
+        self.pattern = (self.rows[order], self.cols[order])
+
+    def _data(self, pt: _Point) -> np.ndarray:
         nz = self.f(pt.t, pt.evaluate(self.syms, self.hashes))[0]
         data = np.zeros(self.n)
         for sel, idx in self.take:
             data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)
         bad = ~np.isfinite(data)
         if np.any(bad):
-            names = model.equation_names
+            names = self.model.equation_names
             raise _NonFinite([names[i] for i in sorted(set(self.rows[bad].tolist()))])
-        return sp.csr_matrix((data, (self.rows, self.cols)),
+        return data
+
+    def __call__(self, pt: _Point) -> sp.csr_matrix:
+        model = self.model
+        return sp.csr_matrix((self._data(pt), (self.rows, self.cols)),
                              shape=(model.n_equations, model.n_unknowns))
+
+    def dense(self, pt: _Point) -> np.ndarray:
+        """The value as a dense array (small models: no SciPy object made)."""
+        out = np.zeros((self.model.n_equations, self.model.n_unknowns))
+        out[self.rows, self.cols] = self._data(pt)
+        return out
 
 
 def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
@@ -992,13 +1007,16 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         model.residual_jacobian(order)  # for the easy test; the system Jacobian's entries too
     jac_at = system_jacobian_at(model, c, d)  # made once for every test point (and reduce)
 
+    small = n <= EASY_DENSE_LIMIT  # small: dense matrices throughout (no SciPy objects)
+    at = jac_at.dense if small else jac_at
+    pat_rows, pat_cols = jac_at.pattern
+
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
         #    (the rank there is the generic one), so structural analysis fails for sure
-        jac = jac_at(pt)
-        coo = jac.tocoo()
-        blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
-        jd = jac.toarray() if n <= EASY_DENSE_LIMIT else jac  # small: dense block slices
+        jac = at(pt)
+        blocks_idx = block_triangular(n, pat_rows, pat_cols, sig.transversal)
+        jd = jac
         checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
         if pt.point is None and pt.attempt == 0:  # system_jacobian_singular's own point
@@ -1014,9 +1032,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(jac_at(pt), jac_at(pt.perturbed()))
-            if n <= EASY_DENSE_LIMIT:
-                jac_c = jac_c.toarray()
+            jac_c = _vanishing_removed(at(pt), at(pt.perturbed()))
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -1030,9 +1046,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(jac_at(pt2), jac_at(pt2.perturbed()))
-                if n <= EASY_DENSE_LIMIT:
-                    jac2 = jac2.toarray()
+                jac2 = _vanishing_removed(at(pt2), at(pt2.perturbed()))
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)

@@ -77,8 +77,10 @@ def _trig(a, b, w, ph):
     return f
 
 
-def generate(seed: int, transform: bool = True) -> Case:
-    """A random manufactured-solution model and its truth (index, DOF, exact solution)."""
+def generate(seed: int, transform: bool = True, big: bool | None = None) -> Case:
+    """A random manufactured-solution model and its truth (index, DOF, exact solution).
+    ``big``: enlarged to 36..60 unknowns (None: for a share ``BIG_SHARE`` of the seeds; False:
+    never, the model of the 35-unknown generator)."""
     rng = np.random.default_rng(seed)
     K = int(rng.integers(1, 6))  # the model's index
     budget = int(rng.integers(max(2, K), 61))
@@ -100,7 +102,7 @@ def generate(seed: int, transform: bool = True) -> Case:
     # generator, unchanged)
     rng2 = np.random.default_rng([seed, 60])
     extra_chains, extra_ode = [], 0
-    if rng2.random() < BIG_SHARE:
+    if (rng2.random() < BIG_SHARE) if big is None else big:
         target = int(rng2.integers(36, 61))
         total = sum(chains) + n_ode
         while len(extra_chains) < 4 and total + K <= target and rng2.random() < 0.6:
@@ -431,6 +433,84 @@ def test_dummy_derivative_dof_and_free():
     r = dk.reduce_index(m, method="dummy_derivatives")
     init = dk.initialize(r, guess={"p": [0.6, 0.0, -0.8]})
     assert init.dof == 4 and len(init.dof_names) == 4
+
+
+#: Seeds whose analysis was wrong at the start of session 3 (the 35-unknown generator) and is
+#: right now: the consistent points were not found (Gauss-Newton from draws in the model's
+#: units, 1e5 away physically in units of 1e-6, stalled or drifted to values of 1e19), or the
+#: structural index of a 16-unknown part was not confirmed (seed 393).
+FORMERLY_WRONG = [7, 32, 96, 104, 135, 224, 263, 276, 393, 488]
+
+
+@pytest.mark.parametrize("seed", FORMERLY_WRONG)
+def test_formerly_wrong_analyses(seed):
+    case = generate(seed, big=False)
+    a = dk.analyze(case.model)
+    assert (a.index, a.dof) == (case.index, case.dof), case.transforms
+
+
+def test_generator_reaches_60_unknowns():
+    sizes = [generate(k).model.n_unknowns for k in range(60)]
+    assert min(sizes) >= 2 and 55 <= max(sizes) <= 60
+    # the enlarged cases leave the others as they were
+    assert generate(7).model.n_unknowns == generate(7, big=False).model.n_unknowns == 12
+
+
+def _dummy_check(case: Case):
+    """reduce_index(method="dummy_derivatives") + initialize from the exact DOF values:
+    "ok" (the DOF and the values right), "ReductionError" (named) or a description."""
+    try:
+        r = dk.reduce_index(case.model, method="dummy_derivatives")
+    except dk.ReductionError as exc:
+        named = any(nm in str(exc) for nm in case.model.equation_names)
+        return "ReductionError" if named else f"unnamed: {exc}"
+    fixed = {nm: case.exact[nm](T0) for nm in case.ode_states}
+    guess = {nm: f(T0) * (1 + 1e-3) for nm, f in case.exact.items() if nm not in fixed}
+    init = dk.initialize(r, t0=T0, guess=guess, fixed=fixed)
+    if init.dof != case.dof or len(init.dof_names) != case.dof:
+        return f"dof {init.dof} {init.dof_names}, truth {case.dof}"
+    err = max(abs(init[nm] - f(T0)) / (1e-3 + abs(f(T0))) for nm, f in case.exact.items())
+    return "ok" if err <= 1e-6 else f"values off by {err:.1e}"
+
+
+@pytest.mark.parametrize("seed, outcome", [(90, "ok"), (434, "ReductionError"),
+                                           (244, "ReductionError")])
+def test_dummy_derivatives_on_generated_models(seed, outcome):
+    # 90: con0 times 1.5 + sin(y1) made y1 a dummy at the random selection point (d con0/dy1
+    # is con0 cos(y1), zero on the solutions): the system lost a DOF (dof 1, truth 2). Now
+    # the selection is checked and made again at a consistent point. 434, 244: amendments
+    # that the method "differentiate" rejects (DOF 4 / values off by 0.8 before)
+    assert _dummy_check(generate(seed, big=False)) == outcome
+
+
+def test_dummy_derivative_pendulum_from_rough_guesses():
+    """Item 5 of issue 10: the planar pendulum (reference problem 2) in dummy-derivative form
+    at t = 0.7, released from pi/6, the two exact DOF values y, y' fixed, the others guessed
+    10 % off: consistent values to 1e-8 of the exact solution, dof 2, for every guess."""
+    from daekit.examples import exact
+
+    t0 = 0.7
+    ex = {k: float(v) for k, v in exact.pendulum_planar(t0, np.pi / 6, g=9.81).items()}
+    r = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        guess = {nm: ex[nm] * (1 + 0.1 * rng.uniform(-1, 1))
+                 for nm in ["x", "der(x)", "der(x,2)", "der(y,2)", "T"]}
+        init = dk.initialize(r, t0=t0, guess=guess, fixed={"y": ex["y"], "der(y)": ex["der(y)"]})
+        assert init.dof == 2 and sorted(init.dof_names) == ["der(y)", "y"]
+        assert init.redundant == []
+        for nm in ["x", "der(x)", "T"]:
+            assert abs(init[nm] - ex[nm]) < 1e-8 * (1 + abs(ex[nm])), nm
+
+
+def test_dummy_derivative_inconsistent_values_are_named():
+    # the message blames the fixed values only when they are inconsistent: here they are
+    # (|p| = 2 on the unit circle's pendulum)
+    r = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    with pytest.raises(dk.InitializationError) as err:
+        dk.initialize(r, fixed={"y": -2.0, "der(y)": 0.0}, guess={"x": 0.1})
+    msg = str(err.value)
+    assert "contradict" in msg and "y = -2" in msg and msg.count("'rod'") == 1
 
 
 if __name__ == "__main__":

@@ -1182,10 +1182,14 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_hel
         broken = [i for i in np.nonzero(cons > 1e-3 * top)[0]] if top > 1e-8 * (1 + res) else []
         if broken:
             fx = [(nm, v) for nm, _, v in fixed_items]
-            shown = ", ".join(f"{row_names[i]} = {hv_held[i]:.3g}" for i in broken[:6])
+            # one mention per name (a dummy-derivative system has its invariants among its
+            # algebraic equations: 'rod' would be named twice)
+            seen: set[str] = set()
+            first = [i for i in broken if not (row_names[i] in seen or seen.add(row_names[i]))]
+            shown = ", ".join(f"{row_names[i]} = {hv_held[i]:.3g}" for i in first[:6])
             raise InitializationError(
                 f"initialize: the fixed values {_fmt(fx)} contradict the consistency "
-                f"conditions {[row_names[i] for i in broken]} (their residuals with the fixed "
+                f"conditions {[row_names[i] for i in first]} (their residuals with the fixed "
                 f"values held: {shown}; the others hold). Fix fewer values - fix only dynamic "
                 "degrees of freedom - or make them consistent, and give the rest as guesses."
             )

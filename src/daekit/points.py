@@ -362,21 +362,34 @@ def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
         yield w0
         return
     if fresh.all():
-        ws = w0
-        for _ in range(3):
-            J = jac(ws)
-            if not np.all(np.isfinite(J.data if sp.issparse(J) else J)):
-                break
-            dc = equilibrate(J)[1]
-            nxt = dc * w0
-            if np.array_equal(nxt, ws):
-                break
-            ws = nxt
+        ws = in_jacobian_units(jac, w0)
         if ws is not w0:
             yield ws
-        yield w0
-        return
     yield w0
+
+
+def in_jacobian_units(jac, r: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """Random values ``r`` in the units the Jacobian suggests: ``w = dc * r`` with ``dc`` the
+    column factors of the equilibrated ``jac(w)`` (:func:`daekit.numerics.equilibrate`), a few
+    rounds from ``w = r`` (the fixed point of a nonlinear model's scaling); ``r`` itself where
+    a Jacobian is not finite at once. A column of ``c x`` gets a factor ``~ 1/c``: the start
+    does not depend on the units of the unknowns.
+
+    >>> import numpy as np
+    >>> w = in_jacobian_units(lambda w: np.array([[1e6, 1.0]]), np.array([0.2, 0.3]))
+    >>> bool(w[0] < 1e-3 < w[1])
+    True
+    """
+    ws = r
+    for _ in range(rounds):
+        J = jac(ws)
+        if not np.all(np.isfinite(J.data if sp.issparse(J) else J)):
+            break
+        nxt = equilibrate(J)[1] * r
+        if np.array_equal(nxt, ws):
+            break
+        ws = nxt
+    return ws
 
 
 def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
@@ -699,6 +712,8 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
         # solutions are of order 1e-3 .. 1e-6 of the model's: a start at 1 diverged to 1e10)
         w0 = (rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n) if k < 3
               else rng.uniform(-1e-3, 1e-3, n) * 1e-3 ** (k - 3))
+        if k == 1:  # in the Jacobian's units (see in_jacobian_units)
+            w0 = in_jacobian_units(lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv), np.abs(w0))
         wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x, pv)[0],
                               w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv))
         if st.consistent:

@@ -330,7 +330,7 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
             return fj.dense(pt.t, fv, w)
     else:
         def jac(w):
-            return fj(pt.t, fv, w)
+            return fj.csc(pt.t, fv, w)
 
     fresh = np.fromiter((h in pt.drawn for h in key), dtype=bool, count=len(key))
     for start in _starts(fun, jac, w0, fresh):
@@ -457,8 +457,13 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         def scaled(Jv):
             return Jv * dr[:, None] * dc[None, :]
     else:
+        jac_any = jac
+
+        def jac(wv):  # CSC throughout (the KKT matrix and the scaling are built from it)
+            Jv = jac_any(wv)
+            return Jv if getattr(Jv, "format", None) == "csc" else sp.csc_matrix(Jv)
+
         def scaled(Jv):
-            Jv = sp.csc_matrix(Jv)
             cols = np.repeat(np.arange(Jv.shape[1]), np.diff(Jv.indptr))
             return sp.csc_matrix((Jv.data * dr[Jv.indices] * dc[cols], Jv.indices, Jv.indptr),
                                  shape=Jv.shape)
@@ -517,7 +522,8 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             # many orders of magnitude wrongly for the points where it holds
             # (the rows only: the columns' factors set the metric of the minimum-norm steps,
             # and changing it between iterates let a system with free unknowns drift)
-            Jc = J * dc[None, :] if dense else J @ sp.diags(dc)
+            Jc = J * dc[None, :] if dense else sp.csc_matrix(
+                (J.data * np.repeat(dc, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape)
             dr = equilibrate(Jc)[0]
             r = merit(h)
         d = _min_norm_step(scaled(J), dr * h)
@@ -676,7 +682,7 @@ def _reduced_point_functions(r, jac_alg: ca.SX | None):
     J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
     f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
     fj = SparseFunction([t_s, u_s, w, p_s], J)
-    return f, (fj.dense if _is_dense(n, G.numel()) else fj)
+    return f, (fj.dense if _is_dense(n, G.numel()) else fj.csc)
 
 
 def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,

@@ -743,6 +743,16 @@ class Model:
         big = parts[0] if len(parts) == 1 else ca.vertcat(*parts)
         return big[pos.tolist()]
 
+    def unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element
+        (cached; do not mutate).
+
+        >>> m = Model("s"); p = m.state("p", 2); z = m.algebraic("z")
+        >>> [a.tolist() for a in m.unknown_arrays()]
+        [[0, 0, 1], [0, 1, 0]]
+        """
+        return self._unknown_arrays()
+
     def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""
         if "unknown_arrays" not in self._cache:

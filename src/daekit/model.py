@@ -651,7 +651,10 @@ class Model:
         """Element names of the unknowns, ``"p[0]"``, ``"z"``, ... (cached; do not mutate)."""
         hit = self._cache.get("unknown_names")
         if hit is None:
-            hit = self._cache["unknown_names"] = [v.element(i) for v, i in self.unknowns]
+            hit = []
+            for v in self.unknown_variables:  # one comprehension per variable
+                hit += [v.name] if v.size == 1 else [f"{v.name}[{i}]" for i in range(v.size)]
+            self._cache["unknown_names"] = hit
         return hit
 
     @property

@@ -473,6 +473,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
     inv_dc = 1.0 / dc
+    row_ref = _row_max(J * dc[None, :] if dense else J @ sp.diags(dc))  # at the equilibration
 
     def merit(hv):
         return np.abs(dr * hv)
@@ -522,10 +523,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             # many orders of magnitude wrongly for the points where it holds
             # (the rows only: the columns' factors set the metric of the minimum-norm steps,
             # and changing it between iterates let a system with free unknowns drift)
+            # (again only where a row's largest scaled entry moved by more than a factor of
+            # 2 since the last equilibration: within that the powers of two stand as they are)
             Jc = J * dc[None, :] if dense else sp.csc_matrix(
                 (J.data * np.repeat(dc, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape)
-            dr = equilibrate(Jc)[0]
-            r = merit(h)
+            rmax = _row_max(Jc)
+            if not (np.all((rmax == 0) == (row_ref == 0))
+                    and np.all((rmax <= 2.0 * row_ref) & (row_ref <= 2.0 * rmax))):
+                dr = equilibrate(Jc)[0]
+                row_ref = rmax
+                r = merit(h)
         d = _min_norm_step(scaled(J), dr * h)
         if d is None or not finite(d):
             break
@@ -547,6 +554,23 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+
+
+def _row_max(J) -> np.ndarray:
+    """Largest magnitude in each row of ``J`` (dense, or sparse), NaN and inf as 0."""
+    if not sp.issparse(J):
+        a = np.abs(J)
+        a[~np.isfinite(a)] = 0.0
+        return a.max(axis=1) if a.shape[1] else np.zeros(a.shape[0])
+    J = sp.csr_matrix(J)
+    a = np.abs(J.data)
+    a[~np.isfinite(a)] = 0.0
+    out = np.zeros(J.shape[0])
+    counts = np.diff(J.indptr)
+    has = counts > 0
+    if a.size:
+        out[has] = np.maximum.reduceat(a, J.indptr[:-1][has])
+    return out
 
 
 def _norm(v: np.ndarray) -> float:

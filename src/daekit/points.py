@@ -42,7 +42,8 @@ from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
-           "gauss_newton", "reduced_consistent_point", "remember_consistent", "DRAWS"]
+           "gauss_newton", "reduced_consistent_point", "remember_consistent",
+           "reduced_point_functions", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -682,6 +683,22 @@ def _remembered_start(r):
             return None
         out.append(np.array([values[h] for h in hashes], dtype=float))
     return t, out[0], out[1]
+
+
+def reduced_point_functions(r) -> tuple:
+    """``(f, jac)``: ``G = [alg; invariants]`` of the ReducedDAE ``r`` and its Jacobian with
+    respect to ``w = (x, z)``, as functions of ``(t, u, w, p)`` (``f`` returns ``[G]``, ``jac``
+    a dense array for small systems, else SciPy CSC), made once per system: the consistent
+    points of :func:`reduced_consistent_point` and the index-1 check of
+    :func:`daekit.reduction.check_index1` (rows ``:nz`` are ``d alg / dw``) share them.
+
+    >>> import daekit as dk, numpy as np
+    >>> r = dk.reduce_index(dk.examples.pendulum_planar())
+    >>> f, jac = reduced_point_functions(r)
+    >>> jac(0.0, np.zeros(0), np.ones(5), r.p_values).shape
+    (3, 5)
+    """
+    return r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, None))
 
 
 def _reduced_point_functions(r, jac_alg: ca.SX | None):

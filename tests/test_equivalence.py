@@ -38,16 +38,18 @@ FAST_CASES = 8
 #: Share of the generated cases enlarged to 36..60 unknowns (see :func:`generate`).
 BIG_SHARE = 0.2
 #: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``, every case simulated,
-#: at commit "reduced_consistent_point: a fifth start"): analyze right on 487, wrong on 13
-#: (all with units of variables or an equation times 1.5 + sin(unknown) / plus an unknown times
-#: another: the derivative array at consistent points has a lower rank than the untransformed
-#: model's, not understood yet), no analyze error; the reduction right (DOF, initial values,
-#: simulated solution to 1e-6) on 434, a named ReductionError on 66, silently wrong on 0.
+#: session 3): analyze right on 497, wrong on 3 (seeds 15 and 229: Gauss-Newton finds no
+#: consistent point of their derivative arrays, an equation times 1.5 + sin(z) makes z the
+#: cheapest direction of every step far from the solutions and the iteration stalls; 146: its
+#: structural index 7 is an upper bound, the true 5 is not confirmed for a 16-unknown part),
+#: no analyze error; the reduction right (DOF, initial values, simulated solution to 1e-6) on
+#: 451, a named ReductionError on 49, silently wrong on 0. (Session 2, the 35-unknown
+#: generator: 487 / 13, and 434 / 66 / 0.)
 MAX_WRONG = 0
-MIN_ANALYSIS_OK = 0.97
-MAX_ANALYSIS_WRONG = 0.03
+MIN_ANALYSIS_OK = 0.99
+MAX_ANALYSIS_WRONG = 0.01
 #: Least share of cases reduced, initialized and simulated right (the rest: named errors).
-MIN_OK = 0.85
+MIN_OK = 0.88
 SLOW_CASES = 500
 #: IDAS tolerances of the simulated check. At rtol >= 1e-10 the reduced systems of index-4/5
 #: chains show a pathology of the integrator (nearly every step fails the error test once:
@@ -326,18 +328,19 @@ def test_equivalent_models_fast():
     counts, failures, sizes, indices = run(FAST_CASES, simulate_every=8)
     assert set(indices) >= {3, 4, 5}
     assert min(sizes) >= 2 and max(sizes) <= 60
-    # 8 cases: the rates of the 500 with the slack of one case (seed 7 is analysed wrong)
-    _assert_rates(counts, FAST_CASES, failures, min_ok=0.5, min_analysis=0.85,
-                  max_analysis_wrong=1 / FAST_CASES)
+    # 8 cases (two of them enlarged to 48 and 49 unknowns): all analysed right (seed 7 was
+    # not before session 3), some reductions declined by a named error
+    _assert_rates(counts, FAST_CASES, failures, min_ok=0.5, min_analysis=1.0,
+                  max_analysis_wrong=0.0)
 
 
 @pytest.mark.slow
 def test_equivalent_models_500():
-    """The acceptance run: 500 cases (seeds 0..499), every third simulated (about 10 min;
+    """The acceptance run: 500 cases (seeds 0..499), every third simulated (about 100 s;
     ``python tests/test_equivalence.py 500`` simulates all and prints the counts)."""
     counts, failures, sizes, indices = run(SLOW_CASES, simulate_every=3)
     assert set(indices) == {1, 2, 3, 4, 5}
-    assert min(sizes) >= 2 and max(sizes) <= 60
+    assert min(sizes) >= 2 and 55 <= max(sizes) <= 60
     _assert_rates(counts, SLOW_CASES, failures)
 
 

@@ -651,7 +651,10 @@ class Model:
         """Element names of the unknowns, ``"p[0]"``, ``"z"``, ... (cached; do not mutate)."""
         hit = self._cache.get("unknown_names")
         if hit is None:
-            hit = self._cache["unknown_names"] = [v.element(i) for v, i in self.unknowns]
+            hit = []
+            for v in self.unknown_variables:  # one comprehension per variable
+                hit += [v.name] if v.size == 1 else [f"{v.name}[{i}]" for i in range(v.size)]
+            self._cache["unknown_names"] = hit
         return hit
 
     @property
@@ -742,6 +745,16 @@ class Model:
             base += int(stack.numel())
         big = parts[0] if len(parts) == 1 else ca.vertcat(*parts)
         return big[pos.tolist()]
+
+    def unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element
+        (cached; do not mutate).
+
+        >>> m = Model("s"); p = m.state("p", 2); z = m.algebraic("z")
+        >>> [a.tolist() for a in m.unknown_arrays()]
+        [[0, 0, 1], [0, 1, 0]]
+        """
+        return self._unknown_arrays()
 
     def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""

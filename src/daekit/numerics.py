@@ -104,19 +104,37 @@ def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
         return np.ones(m), np.ones(n)
     data = np.abs(B.data)
     data[~np.isfinite(data)] = 0.0
-    rows = np.repeat(np.arange(m), np.diff(B.indptr))
+    counts = np.diff(B.indptr)
+    rows = np.repeat(np.arange(m), counts)
     cols = B.indices
     rmax0 = np.zeros(m)
-    np.maximum.at(rmax0, rows, data)
+    has = counts > 0
+    if data.size:  # the rows' largest entries (CSR rows are contiguous segments)
+        rmax0[has] = np.maximum.reduceat(data, B.indptr[:-1][has])
     keep = data > ROW_NOISE * rmax0[rows]  # also drops the zeros
-    rows, cols, data = rows[keep], cols[keep], data[keep]
+    if not keep.all():
+        rows, cols, data = rows[keep], cols[keep], data[keep]
     L = np.log2(data)
-    seg = _Segments(m, n, rows, cols)
+    seg = _segments(m, n, rows, cols)
     e = _ruiz_log_sparse(L, seg, np.zeros(m), np.zeros(n))
     big = L + e[0][rows] + e[1][cols] > _LOG2_NOISE
     lr, lc = _curtis_reid_log(m, n, rows[big], cols[big], L[big])
     er, ec = _ruiz_log_sparse(L, seg, np.round(lr), np.round(lc))
     return np.exp2(er), np.exp2(ec)
+
+
+_SEG = threading.local()  # the last _Segments, per thread (one pattern per Gauss-Newton run)
+
+
+def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> _Segments:
+    """:class:`_Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
+    key = (m, n, rows.tobytes(), cols.tobytes())
+    hit = _SEG.__dict__.get("last")
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    seg = _Segments(m, n, rows, cols)
+    _SEG.last = (key, seg)
+    return seg
 
 
 class _Segments:
@@ -685,6 +703,10 @@ class SparseFunction:
     def __call__(self, *args) -> sp.csr_matrix:
         data = self.values(*args)
         return sp.csc_matrix((data, self.indices, self.indptr), shape=self.shape).tocsr()
+
+    def csc(self, *args) -> sp.csc_matrix:
+        """The value as SciPy CSC (the expression's own order: no conversion)."""
+        return sp.csc_matrix((self.values(*args), self.indices, self.indptr), shape=self.shape)
 
     def dense(self, *args) -> np.ndarray:
         """The value as a dense NumPy array (for small matrices: no SciPy object made).

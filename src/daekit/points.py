@@ -42,7 +42,8 @@ from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
-           "gauss_newton", "reduced_consistent_point", "remember_consistent", "DRAWS"]
+           "gauss_newton", "reduced_consistent_point", "remember_consistent",
+           "reduced_point_functions", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -330,7 +331,7 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
             return fj.dense(pt.t, fv, w)
     else:
         def jac(w):
-            return fj(pt.t, fv, w)
+            return fj.csc(pt.t, fv, w)
 
     fresh = np.fromiter((h in pt.drawn for h in key), dtype=bool, count=len(key))
     for start in _starts(fun, jac, w0, fresh):
@@ -457,8 +458,13 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         def scaled(Jv):
             return Jv * dr[:, None] * dc[None, :]
     else:
+        jac_any = jac
+
+        def jac(wv):  # CSC throughout (the KKT matrix and the scaling are built from it)
+            Jv = jac_any(wv)
+            return Jv if getattr(Jv, "format", None) == "csc" else sp.csc_matrix(Jv)
+
         def scaled(Jv):
-            Jv = sp.csc_matrix(Jv)
             cols = np.repeat(np.arange(Jv.shape[1]), np.diff(Jv.indptr))
             return sp.csc_matrix((Jv.data * dr[Jv.indices] * dc[cols], Jv.indices, Jv.indptr),
                                  shape=Jv.shape)
@@ -468,6 +474,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
     inv_dc = 1.0 / dc
+    row_ref = _row_max(J * dc[None, :] if dense else J @ sp.diags(dc))  # at the equilibration
 
     def merit(hv):
         return np.abs(dr * hv)
@@ -517,9 +524,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             # many orders of magnitude wrongly for the points where it holds
             # (the rows only: the columns' factors set the metric of the minimum-norm steps,
             # and changing it between iterates let a system with free unknowns drift)
-            Jc = J * dc[None, :] if dense else J @ sp.diags(dc)
-            dr = equilibrate(Jc)[0]
-            r = merit(h)
+            # (again only where a row's largest scaled entry moved by more than a factor of
+            # 2 since the last equilibration: within that the powers of two stand as they are)
+            Jc = J * dc[None, :] if dense else sp.csc_matrix(
+                (J.data * np.repeat(dc, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape)
+            rmax = _row_max(Jc)
+            if not (np.all((rmax == 0) == (row_ref == 0))
+                    and np.all((rmax <= 2.0 * row_ref) & (row_ref <= 2.0 * rmax))):
+                dr = equilibrate(Jc)[0]
+                row_ref = rmax
+                r = merit(h)
         d = _min_norm_step(scaled(J), dr * h)
         if d is None or not finite(d):
             break
@@ -541,6 +555,23 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+
+
+def _row_max(J) -> np.ndarray:
+    """Largest magnitude in each row of ``J`` (dense, or sparse), NaN and inf as 0."""
+    if not sp.issparse(J):
+        a = np.abs(J)
+        a[~np.isfinite(a)] = 0.0
+        return a.max(axis=1) if a.shape[1] else np.zeros(a.shape[0])
+    J = sp.csr_matrix(J)
+    a = np.abs(J.data)
+    a[~np.isfinite(a)] = 0.0
+    out = np.zeros(J.shape[0])
+    counts = np.diff(J.indptr)
+    has = counts > 0
+    if a.size:
+        out[has] = np.maximum.reduceat(a, J.indptr[:-1][has])
+    return out
 
 
 def _norm(v: np.ndarray) -> float:
@@ -610,7 +641,9 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     mu = 1e-12
     K = _kkt(sp.csc_matrix(J), mu)
     try:
-        lu = sp.linalg.splu(K, permc_spec="COLAMD")
+        # threshold partial pivoting (0.1, as MA48 and UMFPACK): less fill than strict
+        # partial pivoting; the refinement step below recovers the accuracy
+        lu = sp.linalg.splu(K, permc_spec="COLAMD", diag_pivot_thresh=0.1)
     except RuntimeError:
         return None
     rhs = np.r_[np.zeros(n), -h]
@@ -654,6 +687,22 @@ def _remembered_start(r):
     return t, out[0], out[1]
 
 
+def reduced_point_functions(r) -> tuple:
+    """``(f, jac)``: ``G = [alg; invariants]`` of the ReducedDAE ``r`` and its Jacobian with
+    respect to ``w = (x, z)``, as functions of ``(t, u, w, p)`` (``f`` returns ``[G]``, ``jac``
+    a dense array for small systems, else SciPy CSC), made once per system: the consistent
+    points of :func:`reduced_consistent_point` and the index-1 check of
+    :func:`daekit.reduction.check_index1` (rows ``:nz`` are ``d alg / dw``) share them.
+
+    >>> import daekit as dk, numpy as np
+    >>> r = dk.reduce_index(dk.examples.pendulum_planar())
+    >>> f, jac = reduced_point_functions(r)
+    >>> jac(0.0, np.zeros(0), np.ones(5), r.p_values).shape
+    (3, 5)
+    """
+    return r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, None))
+
+
 def _reduced_point_functions(r, jac_alg: ca.SX | None):
     """The functions of :func:`reduced_consistent_point` for ``r`` (made once per system):
     ``(f, jac)`` of ``G = [alg; invariants]`` in ``(t, u, w, p)``."""
@@ -676,7 +725,7 @@ def _reduced_point_functions(r, jac_alg: ca.SX | None):
     J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
     f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
     fj = SparseFunction([t_s, u_s, w, p_s], J)
-    return f, (fj.dense if _is_dense(n, G.numel()) else fj)
+    return f, (fj.dense if _is_dense(n, G.numel()) else fj.csc)
 
 
 def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,

@@ -10,7 +10,9 @@ evaluated at **consistent points**: values that satisfy the (differentiated) equ
 parameters take their defaults, time and the inputs (and their derivatives) are held at their
 drawn or given values, and Gauss--Newton with minimum-norm steps
 (:func:`gauss_newton`, dense below ``DENSE_UNKNOWNS`` unknowns, sparse LU beyond) moves the
-unknowns onto ``G = 0``. The values of a user's ``point=`` are held and the others solved
+unknowns onto ``G = 0``, first from the draws in the units the Jacobian suggests
+(:func:`in_jacobian_units`: a solve does not depend on the units of the unknowns), then from
+the draws as they are. The values of a user's ``point=`` are held and the others solved
 for; where the given values admit no consistent completion the point is used as given (the
 user asked for it) and the status says it is not consistent. When no consistent point is
 found the caller falls back to the random point and says so (:attr:`PointStatus.consistent`
@@ -42,7 +44,7 @@ from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
-           "gauss_newton", "reduced_consistent_point", "remember_consistent",
+           "gauss_newton", "in_jacobian_units", "reduced_consistent_point", "remember_consistent",
            "reduced_point_functions", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).

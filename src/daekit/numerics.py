@@ -43,7 +43,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg.lapack import dgesv as _dgesv
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
@@ -297,8 +296,11 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
                                       np.bincount(cols, minlength=n)]) + 1e-10
         b = -np.concatenate([np.bincount(rows, vals, minlength=m),
                              np.bincount(cols, vals, minlength=n)])
-        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks
-        _, _, sol, info = _dgesv(K, b)
+        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks (imported
+        # here: scipy.linalg loads on first use, not with daekit)
+        from scipy.linalg.lapack import dgesv
+
+        _, _, sol, info = dgesv(K, b)
         if info != 0:  # pragma: no cover - the ridge keeps K regular
             sol = np.linalg.lstsq(K, b, rcond=None)[0]
         return sol[:m], sol[m:]

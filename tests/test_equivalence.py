@@ -469,7 +469,10 @@ def _dummy_check(case: Case):
         return "ReductionError" if named else f"unnamed: {exc}"
     fixed = {nm: case.exact[nm](T0) for nm in case.ode_states}
     guess = {nm: f(T0) * (1 + 1e-3) for nm, f in case.exact.items() if nm not in fixed}
-    init = dk.initialize(r, t0=T0, guess=guess, fixed=fixed)
+    try:
+        init = dk.initialize(r, t0=T0, guess=guess, fixed=fixed)
+    except dk.InitializationError as exc:
+        return f"initialize: {exc}"
     if init.dof != case.dof or len(init.dof_names) != case.dof:
         return f"dof {init.dof} {init.dof_names}, truth {case.dof}"
     err = max(abs(init[nm] - f(T0)) / (1e-3 + abs(f(T0))) for nm, f in case.exact.items())
@@ -516,8 +519,23 @@ def test_dummy_derivative_inconsistent_values_are_named():
     assert "contradict" in msg and "y = -2" in msg and msg.count("'rod'") == 1
 
 
+def run_dummy(count: int, start: int = 0, verbose: bool = False):
+    """Counts of :func:`_dummy_check` over ``count`` cases: the dummy-derivative form's DOF
+    and initial values (``python tests/test_equivalence.py 500 --dummy``)."""
+    counts: dict[str, int] = {"ok": 0, "ReductionError": 0, "wrong": 0}
+    for k in range(start, start + count):
+        out = _dummy_check(generate(k))
+        counts[out if out in counts else "wrong"] += 1
+        if verbose and out not in ("ok", "ReductionError"):
+            print(k, out, flush=True)
+    return counts
+
+
 if __name__ == "__main__":
     n = int(sys.argv[1]) if len(sys.argv) > 1 else SLOW_CASES
+    if "--dummy" in sys.argv:
+        print(f"{n} cases, method='dummy_derivatives': {run_dummy(n, verbose=True)}")
+        sys.exit()
     counts, failures, sizes, indices = run(n, verbose=True)
     print(f"{n} cases (unknowns {min(sizes)}..{max(sizes)}, index "
           f"{dict(sorted({k: indices.count(k) for k in set(indices)}.items()))}): {counts}")

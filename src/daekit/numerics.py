@@ -313,6 +313,8 @@ _CR = threading.local()  # factorizations of Curtis--Reid's normal equations, pe
 #: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
 #: Jacobian of one pattern at every iterate.
 CR_PATTERNS = 4
+#: ... each with at most this many nonzeros in its factors (about 24 MB)
+CR_KEEP_NNZ = 2_000_000
 
 
 def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -331,9 +333,10 @@ def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
         cc = np.bincount(cols, minlength=n).astype(float)
         K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
         lu = sp.linalg.splu(K, permc_spec="COLAMD")
-        if len(cache) >= CR_PATTERNS:
-            cache.pop(next(iter(cache)))
-        cache[key] = lu
+        if lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ:  # kept only while it is small in memory
+            if len(cache) >= CR_PATTERNS:
+                cache.pop(next(iter(cache)))
+            cache[key] = lu
     return lu
 
 

@@ -89,6 +89,30 @@ def test_sixteen_lengths_on_dask_identical(planar, local, dask_client):
     assert [r["period"] for r in ex.summary()] == [r["period"] for r in local.summary()[:4]]
 
 
+def blas_threads_here(traj):
+    """A reduce run in the worker: how many threads its BLAS pool has."""
+    from threadpoolctl import threadpool_info
+    return {"blas": max((i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"),
+                        default=1)}
+
+
+def test_workers_run_one_blas_thread_and_this_process_gets_its_own_back(planar):
+    """A started OpenBLAS thread spins 50-100 ms: forked workers must not start any (they run
+    one BLAS thread), and this process gets its own setting back afterwards."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def here():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    with threadpool_limits(2, user_api="blas"):
+        before = here()
+        ens = dk.ensemble(planar, T_GRID[:50], swing_samples()[:4], fixed={"der(x)": 0.0},
+                          reduce=blas_threads_here, progress=False)
+        assert ens.failures == {} and ens.stats["executor"] == "processes"
+        assert [row["blas"] for row in ens.summary()] == [1, 1, 1, 1]
+        assert here() == before
+
+
 def test_serial_and_thread_pool_identical(planar, local):
     from concurrent.futures import ThreadPoolExecutor
 

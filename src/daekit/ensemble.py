@@ -47,6 +47,7 @@ True
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import multiprocessing
@@ -62,6 +63,7 @@ import numpy as np
 
 from .errors import DaekitError, ModelError
 from .sampling import sample
+from .threads import blas_threads, single_threaded_worker
 
 __all__ = ["Ensemble", "ensemble", "ensemble_ocp", "sample"]
 
@@ -360,9 +362,12 @@ def _pack_system(r, inputs) -> bytes:
 
 
 def _install(key: str, blob: bytes) -> None:
-    """Worker initializer: deserialize the system (and the inputs) once."""
+    """Worker initializer: one BLAS thread for the worker's life (see
+    :func:`daekit.threads.single_threaded_worker`), then deserialize the system (and the
+    inputs) once."""
     import casadi as ca
 
+    single_threaded_worker()
     if key not in _SYSTEMS:
         if len(_SYSTEMS) >= 4:
             _SYSTEMS.pop(next(iter(_SYSTEMS)))
@@ -384,7 +389,10 @@ def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, 
         r, inputs = _SYSTEMS[key]
         job = pickle.loads(payload)  # noqa: S301 - our own serialization
         job["inputs"] = inputs
-        return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+        # one BLAS thread while the samples run (a no-op in daekit's own workers, which have
+        # one already): the workers share the cores, and more threads only compete for them
+        with blas_threads(1):
+            return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
 
 
 def _run_one(r, s: dict, job: dict) -> dict:
@@ -642,6 +650,7 @@ def ensemble(
         stats["system_bytes"] = len(blob)
         own = None
         inherited = None
+        single_blas = contextlib.ExitStack()
         ex = executor
         if ex is None:
             from concurrent.futures import ProcessPoolExecutor
@@ -654,6 +663,11 @@ def ensemble(
                 # the blob stays the fallback (a worker started otherwise unpickles it)
                 _SYSTEMS[key] = (r, inputs)
                 inherited = key
+            # this process keeps one BLAS thread while its workers run: the forked workers
+            # inherit that (no OpenBLAS thread is started, and none spins, in them), and this
+            # process does not start its own threads again meanwhile (a started OpenBLAS thread
+            # spins some 50-100 ms, taking a core from the workers)
+            single_blas.enter_context(blas_threads(1))
             own = ex = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_install,
                                            initargs=(key, blob))
             stats.update(executor="processes", workers=n_workers)
@@ -698,6 +712,7 @@ def ensemble(
                 _SYSTEMS.pop(inherited, None)  # the workers have their copies
             if own is not None:
                 own.shutdown(wait=True)
+            single_blas.close()
         if local_reduce is not None:
             for res in results:
                 if res is not None and not res.get("error"):

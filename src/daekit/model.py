@@ -179,9 +179,11 @@ class Variable:
         if order == 0:
             return self.sym
         if order not in self.ders:
-            self.ders[order] = ca.vertcat(
-                *[ca.SX.sym(element_name(self.name, self.size, i, order)) for i in range(self.size)]
-            )
+            if self.size == 1:
+                self.ders[order] = ca.SX.sym(element_name(self.name, 1, 0, order))
+            else:
+                self.ders[order] = ca.vertcat(*[ca.SX.sym(element_name(self.name, self.size, i, order))
+                                                for i in range(self.size)])
         return self.ders[order]
 
     def element(self, index: int, order: int = 0) -> str:

@@ -43,7 +43,6 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg.lapack import dgesv as _dgesv
 
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
@@ -297,8 +296,11 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
                                       np.bincount(cols, minlength=n)]) + 1e-10
         b = -np.concatenate([np.bincount(rows, vals, minlength=m),
                              np.bincount(cols, vals, minlength=n)])
-        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks
-        _, _, sol, info = _dgesv(K, b)
+        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks (imported
+        # here: scipy.linalg loads on first use, not with daekit)
+        from scipy.linalg.lapack import dgesv
+
+        _, _, sol, info = dgesv(K, b)
         if info != 0:  # pragma: no cover - the ridge keeps K regular
             sol = np.linalg.lstsq(K, b, rcond=None)[0]
         return sol[:m], sol[m:]
@@ -311,6 +313,8 @@ _CR = threading.local()  # factorizations of Curtis--Reid's normal equations, pe
 #: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
 #: Jacobian of one pattern at every iterate.
 CR_PATTERNS = 4
+#: ... each with at most this many nonzeros in its factors (about 24 MB)
+CR_KEEP_NNZ = 2_000_000
 
 
 def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -329,9 +333,10 @@ def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
         cc = np.bincount(cols, minlength=n).astype(float)
         K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
         lu = sp.linalg.splu(K, permc_spec="COLAMD")
-        if len(cache) >= CR_PATTERNS:
-            cache.pop(next(iter(cache)))
-        cache[key] = lu
+        if lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ:  # kept only while it is small in memory
+            if len(cache) >= CR_PATTERNS:
+                cache.pop(next(iter(cache)))
+            cache[key] = lu
     return lu
 
 

@@ -35,17 +35,21 @@ import pytest
 import daekit as dk
 
 FAST_CASES = 8
+#: Share of the generated cases enlarged to 36..60 unknowns (see :func:`generate`).
+BIG_SHARE = 0.2
 #: Measured on seeds 0..499 (``python tests/test_equivalence.py 500``, every case simulated,
-#: at commit "reduced_consistent_point: a fifth start"): analyze right on 487, wrong on 13
-#: (all with units of variables or an equation times 1.5 + sin(unknown) / plus an unknown times
-#: another: the derivative array at consistent points has a lower rank than the untransformed
-#: model's, not understood yet), no analyze error; the reduction right (DOF, initial values,
-#: simulated solution to 1e-6) on 434, a named ReductionError on 66, silently wrong on 0.
+#: session 3): analyze right on 497, wrong on 3 (seeds 15 and 229: Gauss-Newton finds no
+#: consistent point of their derivative arrays, an equation times 1.5 + sin(z) makes z the
+#: cheapest direction of every step far from the solutions and the iteration stalls; 146: its
+#: structural index 7 is an upper bound, the true 5 is not confirmed for a 16-unknown part),
+#: no analyze error; the reduction right (DOF, initial values, simulated solution to 1e-6) on
+#: 451, a named ReductionError on 49, silently wrong on 0. (Session 2, the 35-unknown
+#: generator: 487 / 13, and 434 / 66 / 0.)
 MAX_WRONG = 0
-MIN_ANALYSIS_OK = 0.97
-MAX_ANALYSIS_WRONG = 0.03
+MIN_ANALYSIS_OK = 0.99
+MAX_ANALYSIS_WRONG = 0.01
 #: Least share of cases reduced, initialized and simulated right (the rest: named errors).
-MIN_OK = 0.85
+MIN_OK = 0.88
 SLOW_CASES = 500
 #: IDAS tolerances of the simulated check. At rtol >= 1e-10 the reduced systems of index-4/5
 #: chains show a pathology of the integrator (nearly every step fails the error test once:
@@ -75,8 +79,10 @@ def _trig(a, b, w, ph):
     return f
 
 
-def generate(seed: int, transform: bool = True) -> Case:
-    """A random manufactured-solution model and its truth (index, DOF, exact solution)."""
+def generate(seed: int, transform: bool = True, big: bool | None = None) -> Case:
+    """A random manufactured-solution model and its truth (index, DOF, exact solution).
+    ``big``: enlarged to 36..60 unknowns (None: for a share ``BIG_SHARE`` of the seeds; False:
+    never, the model of the 35-unknown generator)."""
     rng = np.random.default_rng(seed)
     K = int(rng.integers(1, 6))  # the model's index
     budget = int(rng.integers(max(2, K), 61))
@@ -93,6 +99,19 @@ def generate(seed: int, transform: bool = True) -> Case:
         n_ode = int(rng.integers(0, 13))
     if sum(chains) + n_ode < 2:
         n_ode = 1
+    # a share BIG_SHARE of the cases are enlarged to 36..60 unknowns by more chains and ODE
+    # blocks, drawn from a second stream (the other cases are the models of the 35-unknown
+    # generator, unchanged)
+    rng2 = np.random.default_rng([seed, 60])
+    extra_chains, extra_ode = [], 0
+    if (rng2.random() < BIG_SHARE) if big is None else big:
+        target = int(rng2.integers(36, 61))
+        total = sum(chains) + n_ode
+        while len(extra_chains) < 4 and total + K <= target and rng2.random() < 0.6:
+            k = int(rng2.integers(1, K + 1))
+            extra_chains.append(k)
+            total += k
+        extra_ode = target - total
     m = dk.Model(f"manufactured_{seed}")
     t = m.t
     scale_vars = transform and rng.random() < 0.5
@@ -101,18 +120,19 @@ def generate(seed: int, transform: bool = True) -> Case:
     phys: list = []  # physical values (SX) of the unknowns, for coupling and multiples
     ode_states = []
 
-    def unit():
-        return float(10 ** rng.uniform(-6, 6)) if scale_vars else 1.0
+    def unit(r_=rng):
+        return float(10 ** r_.uniform(-6, 6)) if scale_vars else 1.0
 
     # ODE blocks
     ys = []
-    for b in range(n_ode):
-        s = unit()
+    for b in range(n_ode + extra_ode):
+        r_ = rng if b < n_ode else rng2
+        s = unit(r_)
         yv = m.state(f"y{b}")
         y, dy = s * yv, s * m.der(yv)
-        ystar = _trig(2.0 + rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.5, 2),
-                      rng.uniform(0, 6))
-        a_, b_ = rng.uniform(0.5, 2.0), rng.uniform(-0.5, 0.5)
+        ystar = _trig(2.0 + r_.uniform(0, 1), r_.uniform(0.2, 0.8), r_.uniform(0.5, 2),
+                      r_.uniform(0, 6))
+        a_, b_ = r_.uniform(0.5, 2.0), r_.uniform(-0.5, 0.5)
         e = (dy - ystar(t, 1, True) + a_ * (y - ystar(t, 0, True))
              + b_ * (ca.sin(y) - ca.sin(ystar(t, 0, True))))
         eqs.append((f"ode{b}", e))
@@ -122,26 +142,27 @@ def generate(seed: int, transform: bool = True) -> Case:
         ode_states.append(f"y{b}")
     # chains
     chain_x1 = []
-    for c, k in enumerate(chains):
-        g = _trig(1.0 + rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.5, 1.5),
-                  rng.uniform(0, 6))
+    for c, k in enumerate(chains + extra_chains):
+        r_ = rng if c < len(chains) else rng2
+        g = _trig(1.0 + r_.uniform(0, 1), r_.uniform(0.2, 0.8), r_.uniform(0.5, 1.5),
+                  r_.uniform(0, 6))
         xs, dxs = [], []
         for i in range(k - 1):
-            s = unit()
+            s = unit(r_)
             xv = m.state(f"x{c}_{i}")
             xs.append(s * xv)
             dxs.append(s * m.der(xv))
             exact[f"x{c}_{i}"] = (lambda tt, i=i, g=g, s=s: g(tt, i) / s)
-        s = unit()
+        s = unit(r_)
         zv = m.algebraic(f"z{c}")
         zz = s * zv
         exact[f"z{c}"] = (lambda tt, g=g, k=k, s=s: g(tt, k - 1) / s)
 
-        def coupling():
-            if not ys or rng.random() < 0.5:
+        def coupling(r_=r_):
+            if not ys or r_.random() < 0.5:
                 return 0
-            y, ystar = ys[int(rng.integers(len(ys)))]
-            return rng.uniform(-1, 1) * (y - ystar(t, 0, True))
+            y, ystar = ys[int(r_.integers(len(ys)))]
+            return r_.uniform(-1, 1) * (y - ystar(t, 0, True))
 
         chain = xs + [zz]
         for i in range(k - 1):
@@ -164,7 +185,7 @@ def generate(seed: int, transform: bool = True) -> Case:
         eqs, transforms = _transform(rng, eqs, phys, transforms)
     for name, e in eqs:
         m.equation(e, name=name)
-    return Case(seed, m, K, n_ode, exact, ode_states, transforms)
+    return Case(seed, m, K, n_ode + extra_ode, exact, ode_states, transforms)
 
 
 def _transform(rng, eqs, phys, transforms):
@@ -307,18 +328,19 @@ def test_equivalent_models_fast():
     counts, failures, sizes, indices = run(FAST_CASES, simulate_every=8)
     assert set(indices) >= {3, 4, 5}
     assert min(sizes) >= 2 and max(sizes) <= 60
-    # 8 cases: the rates of the 500 with the slack of one case (seed 7 is analysed wrong)
-    _assert_rates(counts, FAST_CASES, failures, min_ok=0.5, min_analysis=0.85,
-                  max_analysis_wrong=1 / FAST_CASES)
+    # 8 cases (two of them enlarged to 48 and 49 unknowns): all analysed right (seed 7 was
+    # not before session 3), some reductions declined by a named error
+    _assert_rates(counts, FAST_CASES, failures, min_ok=0.5, min_analysis=1.0,
+                  max_analysis_wrong=0.0)
 
 
 @pytest.mark.slow
 def test_equivalent_models_500():
-    """The acceptance run: 500 cases (seeds 0..499), every third simulated (about 10 min;
+    """The acceptance run: 500 cases (seeds 0..499), every third simulated (about 100 s;
     ``python tests/test_equivalence.py 500`` simulates all and prints the counts)."""
     counts, failures, sizes, indices = run(SLOW_CASES, simulate_every=3)
     assert set(indices) == {1, 2, 3, 4, 5}
-    assert min(sizes) >= 2 and max(sizes) <= 60
+    assert min(sizes) >= 2 and 55 <= max(sizes) <= 60
     _assert_rates(counts, SLOW_CASES, failures)
 
 
@@ -416,8 +438,104 @@ def test_dummy_derivative_dof_and_free():
     assert init.dof == 4 and len(init.dof_names) == 4
 
 
+#: Seeds whose analysis was wrong at the start of session 3 (the 35-unknown generator) and is
+#: right now: the consistent points were not found (Gauss-Newton from draws in the model's
+#: units, 1e5 away physically in units of 1e-6, stalled or drifted to values of 1e19), or the
+#: structural index of a 16-unknown part was not confirmed (seed 393).
+FORMERLY_WRONG = [7, 32, 96, 104, 135, 224, 263, 276, 393, 488]
+
+
+@pytest.mark.parametrize("seed", FORMERLY_WRONG)
+def test_formerly_wrong_analyses(seed):
+    case = generate(seed, big=False)
+    a = dk.analyze(case.model)
+    assert (a.index, a.dof) == (case.index, case.dof), case.transforms
+
+
+def test_generator_reaches_60_unknowns():
+    sizes = [generate(k).model.n_unknowns for k in range(60)]
+    assert min(sizes) >= 2 and 55 <= max(sizes) <= 60
+    # the enlarged cases leave the others as they were
+    assert generate(7).model.n_unknowns == generate(7, big=False).model.n_unknowns == 12
+
+
+def _dummy_check(case: Case):
+    """reduce_index(method="dummy_derivatives") + initialize from the exact DOF values:
+    "ok" (the DOF and the values right), "ReductionError" (named) or a description."""
+    try:
+        r = dk.reduce_index(case.model, method="dummy_derivatives")
+    except dk.ReductionError as exc:
+        named = any(nm in str(exc) for nm in case.model.equation_names)
+        return "ReductionError" if named else f"unnamed: {exc}"
+    fixed = {nm: case.exact[nm](T0) for nm in case.ode_states}
+    guess = {nm: f(T0) * (1 + 1e-3) for nm, f in case.exact.items() if nm not in fixed}
+    try:
+        init = dk.initialize(r, t0=T0, guess=guess, fixed=fixed)
+    except dk.InitializationError as exc:
+        return f"initialize: {exc}"
+    if init.dof != case.dof or len(init.dof_names) != case.dof:
+        return f"dof {init.dof} {init.dof_names}, truth {case.dof}"
+    err = max(abs(init[nm] - f(T0)) / (1e-3 + abs(f(T0))) for nm, f in case.exact.items())
+    return "ok" if err <= 1e-6 else f"values off by {err:.1e}"
+
+
+@pytest.mark.parametrize("seed, outcome", [(90, "ok"), (434, "ReductionError"),
+                                           (244, "ReductionError")])
+def test_dummy_derivatives_on_generated_models(seed, outcome):
+    # 90: con0 times 1.5 + sin(y1) made y1 a dummy at the random selection point (d con0/dy1
+    # is con0 cos(y1), zero on the solutions): the system lost a DOF (dof 1, truth 2). Now
+    # the selection is checked and made again at a consistent point. 434, 244: amendments
+    # that the method "differentiate" rejects (DOF 4 / values off by 0.8 before)
+    assert _dummy_check(generate(seed, big=False)) == outcome
+
+
+def test_dummy_derivative_pendulum_from_rough_guesses():
+    """Item 5 of issue 10: the planar pendulum (reference problem 2) in dummy-derivative form
+    at t = 0.7, released from pi/6, the two exact DOF values y, y' fixed, the others guessed
+    10 % off: consistent values to 1e-8 of the exact solution, dof 2, for every guess."""
+    from daekit.examples import exact
+
+    t0 = 0.7
+    ex = {k: float(v) for k, v in exact.pendulum_planar(t0, np.pi / 6, g=9.81).items()}
+    r = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        guess = {nm: ex[nm] * (1 + 0.1 * rng.uniform(-1, 1))
+                 for nm in ["x", "der(x)", "der(x,2)", "der(y,2)", "T"]}
+        init = dk.initialize(r, t0=t0, guess=guess, fixed={"y": ex["y"], "der(y)": ex["der(y)"]})
+        assert init.dof == 2 and sorted(init.dof_names) == ["der(y)", "y"]
+        assert init.redundant == []
+        for nm in ["x", "der(x)", "T"]:
+            assert abs(init[nm] - ex[nm]) < 1e-8 * (1 + abs(ex[nm])), nm
+
+
+def test_dummy_derivative_inconsistent_values_are_named():
+    # the message blames the fixed values only when they are inconsistent: here they are
+    # (|p| = 2 on the unit circle's pendulum)
+    r = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    with pytest.raises(dk.InitializationError) as err:
+        dk.initialize(r, fixed={"y": -2.0, "der(y)": 0.0}, guess={"x": 0.1})
+    msg = str(err.value)
+    assert "contradict" in msg and "y = -2" in msg and msg.count("'rod'") == 1
+
+
+def run_dummy(count: int, start: int = 0, verbose: bool = False):
+    """Counts of :func:`_dummy_check` over ``count`` cases: the dummy-derivative form's DOF
+    and initial values (``python tests/test_equivalence.py 500 --dummy``)."""
+    counts: dict[str, int] = {"ok": 0, "ReductionError": 0, "wrong": 0}
+    for k in range(start, start + count):
+        out = _dummy_check(generate(k))
+        counts[out if out in counts else "wrong"] += 1
+        if verbose and out not in ("ok", "ReductionError"):
+            print(k, out, flush=True)
+    return counts
+
+
 if __name__ == "__main__":
     n = int(sys.argv[1]) if len(sys.argv) > 1 else SLOW_CASES
+    if "--dummy" in sys.argv:
+        print(f"{n} cases, method='dummy_derivatives': {run_dummy(n, verbose=True)}")
+        sys.exit()
     counts, failures, sizes, indices = run(n, verbose=True)
     print(f"{n} cases (unknowns {min(sizes)}..{max(sizes)}, index "
           f"{dict(sorted({k: indices.count(k) for k in set(indices)}.items()))}): {counts}")

@@ -32,6 +32,15 @@ def test_slider_crank_derivative_array_index3_stiff():
     assert (d.index, d.dof) == (3, 8)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("EE", [2e5, 2e11])
+def test_slider_crank_derivative_array_index2_both_ends(EE):
+    # the derivative array at the two ends of the issue's range, the Test Set's default form
+    # (about 12 s each; the index-3 form takes 50-110 s and is checked at 2e8 above)
+    d = dk.differential_index(slider_crank(EE, index=2))
+    assert (d.index, d.dof) == (2, 11)
+
+
 def test_slider_crank_mass_matrix_of_the_rigid_limit():
     """The mass matrix at rest (q = 0, phi1 = phi2 = 0) against the hand-computed values of a
     uniform rod of mass m2 = rho b h L2: the crank inertia J1 plus m2 l1^2 (the whole rod

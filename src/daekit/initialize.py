@@ -1182,10 +1182,14 @@ def _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_hel
         broken = [i for i in np.nonzero(cons > 1e-3 * top)[0]] if top > 1e-8 * (1 + res) else []
         if broken:
             fx = [(nm, v) for nm, _, v in fixed_items]
-            shown = ", ".join(f"{row_names[i]} = {hv_held[i]:.3g}" for i in broken[:6])
+            # one mention per name (a dummy-derivative system has its invariants among its
+            # algebraic equations: 'rod' would be named twice)
+            seen: set[str] = set()
+            first = [i for i in broken if not (row_names[i] in seen or seen.add(row_names[i]))]
+            shown = ", ".join(f"{row_names[i]} = {hv_held[i]:.3g}" for i in first[:6])
             raise InitializationError(
                 f"initialize: the fixed values {_fmt(fx)} contradict the consistency "
-                f"conditions {[row_names[i] for i in broken]} (their residuals with the fixed "
+                f"conditions {[row_names[i] for i in first]} (their residuals with the fixed "
                 f"values held: {shown}; the others hold). Fix fewer values - fix only dynamic "
                 "degrees of freedom - or make them consistent, and give the rest as guesses."
             )
@@ -1255,6 +1259,13 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
 
     nz = Jc.shape[1] - nx
     n_alg = r.nz if r.alg.numel() == r.nz else int(r.alg.numel())
+    # in the coordinates of the equilibrated Jc (ranks and pivots below are scale-invariant,
+    # and there an entry of the Schur complement below 1e-10 is rounding residue whatever
+    # the units: the dummy-derivative pendulum's invariant, a copy of one of its algebraic
+    # equations, left 9e-17 where J_inv,x and the computed inverse's entries are 0 too, and
+    # der(y) was reported dependent on y at some points: dof 1, not 2)
+    er, ec = equilibrate(Jc)
+    Jc = Jc * er[:, None] * ec[None, :]
     Ja, Ji = Jc[:n_alg], Jc[n_alg:]
     if Ji.shape[0] == 0 or nx == 0:
         return set(r.x_names)
@@ -1271,7 +1282,8 @@ def _free_states(r, Jc, nx, fixed: set[str]) -> set[str]:
             Y = dc[:, None] * np.linalg.lstsq(Bz, Ja[:, :nx] * dr[:, None], rcond=1e-12)[0]
         T = Ji[:, nx:] @ Y
         Jred = Ji[:, :nx] - T
-        Jred[np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T))] = 0.0
+        Jred[(np.abs(Jred) <= 1e-10 * (np.abs(Ji[:, :nx]) + np.abs(T)))
+             | (np.abs(Jred) <= 1e-10)] = 0.0
     else:
         Jred = Ji[:, :nx].copy()
     if regular or not nz:

@@ -33,6 +33,9 @@ __all__ = ["Model", "Variable", "Equation", "Event", "parse_name", "element_name
            "select_name", "fit_elements", "NameNotFoundError"]
 
 UNKNOWN_KINDS = ("state", "algebraic", "variable")
+#: :meth:`Model.symbols_at` of at most this many symbols picks the scalar symbols themselves
+#: (one ``vertcat``) instead of indexing stacked columns (NumPy set-up costs more there).
+SMALL_SYMBOLS = 32
 KINDS = UNKNOWN_KINDS + ("control", "parameter")
 _NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
 _REF_RE = re.compile(
@@ -176,9 +179,11 @@ class Variable:
         if order == 0:
             return self.sym
         if order not in self.ders:
-            self.ders[order] = ca.vertcat(
-                *[ca.SX.sym(element_name(self.name, self.size, i, order)) for i in range(self.size)]
-            )
+            if self.size == 1:
+                self.ders[order] = ca.SX.sym(element_name(self.name, 1, 0, order))
+            else:
+                self.ders[order] = ca.vertcat(*[ca.SX.sym(element_name(self.name, self.size, i, order))
+                                                for i in range(self.size)])
         return self.ders[order]
 
     def element(self, index: int, order: int = 0) -> str:
@@ -621,7 +626,12 @@ class Model:
     # ------------------------------------------------------------------ flattened views
     @property
     def unknown_variables(self) -> list[Variable]:
-        return [v for v in self.variables.values() if v.kind in UNKNOWN_KINDS]
+        """The unknowns' variables in declaration order (cached; do not mutate)."""
+        hit = self._cache.get("unknown_variables")
+        if hit is None:
+            hit = self._cache["unknown_variables"] = [
+                v for v in self.variables.values() if v.kind in UNKNOWN_KINDS]
+        return hit
 
     @property
     def controls(self) -> list[Variable]:
@@ -640,7 +650,14 @@ class Model:
 
     @property
     def unknown_names(self) -> list[str]:
-        return [v.element(i) for v, i in self.unknowns]
+        """Element names of the unknowns, ``"p[0]"``, ``"z"``, ... (cached; do not mutate)."""
+        hit = self._cache.get("unknown_names")
+        if hit is None:
+            hit = []
+            for v in self.unknown_variables:  # one comprehension per variable
+                hit += [v.name] if v.size == 1 else [f"{v.name}[{i}]" for i in range(v.size)]
+            self._cache["unknown_names"] = hit
+        return hit
 
     @property
     def n_unknowns(self) -> int:
@@ -705,6 +722,18 @@ class Model:
             )
         if not js.size:
             return ca.SX(0, 1)
+        if js.size <= SMALL_SYMBOLS:  # a few: the scalar symbols, one vertcat
+            unknowns = self.unknowns
+            elems: dict[tuple[int, int], list] = {}
+            out = []
+            for j, o in zip(js.tolist(), orders.tolist(), strict=True):
+                var, i = unknowns[j]
+                key = (j - i, o)
+                row = elems.get(key)
+                if row is None:
+                    row = elems[key] = self._order_elements(var, o)
+                out.append(row[i])
+            return ca.vertcat(*out)
         var_of, elem_of = self._unknown_arrays()
         variables = self.unknown_variables
         parts, base, pos = [], 0, np.empty(js.size, dtype=np.int64)
@@ -718,6 +747,16 @@ class Model:
             base += int(stack.numel())
         big = parts[0] if len(parts) == 1 else ca.vertcat(*parts)
         return big[pos.tolist()]
+
+    def unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element
+        (cached; do not mutate).
+
+        >>> m = Model("s"); p = m.state("p", 2); z = m.algebraic("z")
+        >>> [a.tolist() for a in m.unknown_arrays()]
+        [[0, 0, 1], [0, 1, 0]]
+        """
+        return self._unknown_arrays()
 
     def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""
@@ -849,7 +888,71 @@ class Model:
             cache[order] = (J, cols)
         return cache[order]
 
-    def memo(self, key: str, make):
+    def system_jacobian(self, c, d) -> ca.SX:
+        """Pryce's system Jacobian for the offsets ``c`` (equations) and ``d`` (unknowns) as a
+        symbolic sparse ``n x n`` matrix: ``J_ij = dF_i / dx_j^(d_j - c_i)`` (with
+        ``d_j - c_i >= sigma_ij``, its nonzeros are the entries where ``sigma_ij = d_j - c_i``;
+        it is also ``dF_i^(c_i) / dx_j^(d_j)``, without differentiating anything). One
+        Jacobian per distinct offset ``c_i``; made once per ``(c, d)`` until the model changes
+        (analysis, reduction and the elimination of explicit derivatives share it).
+
+        >>> import daekit as dk
+        >>> m = dk.examples.pendulum_planar(); s = m.sigma()
+        >>> J = m.system_jacobian(s.c, s.d)
+        >>> J.shape, J.nnz()
+        ((3, 3), 6)
+        """
+        c = np.asarray(c, dtype=np.int64)
+        d = np.asarray(d, dtype=np.int64)
+        key = ("system_jacobian", c.tobytes(), d.tobytes())
+        return self.memo(key, lambda: self._system_jacobian(c, d))
+
+    def _system_jacobian(self, c: np.ndarray, d: np.ndarray) -> ca.SX:
+        n_e, n_u = self.n_equations, self.n_unknowns
+        F = self.residual
+        rows_all, cols_all, parts = [], [], []
+        inc = self.incidence()
+        orders = np.unique((d[inc.cols] - c[inc.rows])[inc.vals == d[inc.cols] - c[inc.rows]])
+        have = self._cache.get("residual_jacobian", {})
+        if all(int(o) in have for o in orders):
+            # the analysis has made the residual's Jacobians by order: their tight entries
+            # (x_j^(o) in F_i with d_j - c_i = o), no new differentiation
+            for o in orders.tolist():
+                J, cols_o = have[o]
+                r, cc = J.sparsity().get_triplet()
+                r = np.asarray(r, dtype=np.int64)
+                cj = np.asarray(cols_o, dtype=np.int64)[np.asarray(cc, dtype=np.int64)]
+                sel = np.nonzero(d[cj] - c[r] == o)[0]
+                if sel.size:
+                    rows_all.append(r[sel])
+                    cols_all.append(cj[sel])
+                    parts.append(J.nz[sel.tolist()])
+            cvs = []
+        else:
+            cvs = np.unique(c).tolist()
+        for cv in cvs:
+            rows = np.nonzero(c == cv)[0]
+            cols = np.nonzero(d >= cv)[0]
+            if not rows.size or not cols.size:
+                continue
+            Fr = F if rows.size == n_e else F[rows.tolist()]
+            J = ca.jacobian(Fr, self.symbols_at(cols, d[cols] - cv))
+            r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
+            if not r:
+                continue
+            rows_all.append(rows[np.asarray(r, dtype=np.int64)])
+            cols_all.append(cols[np.asarray(cc, dtype=np.int64)])
+            parts.append(J.nz[:])
+        if not parts:
+            return ca.SX(n_e, n_u)
+        R = np.concatenate(rows_all)
+        C = np.concatenate(cols_all)
+        nz = ca.vertcat(*[ca.vec(p) for p in parts])
+        order = np.lexsort((R, C))  # the column-major order of the assembled matrix
+        sparsity = ca.Sparsity.triplet(n_e, n_u, R[order].tolist(), C[order].tolist())
+        return ca.SX(sparsity, nz[order.tolist()])
+
+    def memo(self, key, make):
         """``make()``, computed once and kept until the model changes (for values built from
         the model that several steps need, e.g. the expansion by Pryce's offsets).
 

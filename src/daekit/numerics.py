@@ -36,6 +36,7 @@ Example
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 
@@ -102,19 +103,37 @@ def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
         return np.ones(m), np.ones(n)
     data = np.abs(B.data)
     data[~np.isfinite(data)] = 0.0
-    rows = np.repeat(np.arange(m), np.diff(B.indptr))
+    counts = np.diff(B.indptr)
+    rows = np.repeat(np.arange(m), counts)
     cols = B.indices
     rmax0 = np.zeros(m)
-    np.maximum.at(rmax0, rows, data)
+    has = counts > 0
+    if data.size:  # the rows' largest entries (CSR rows are contiguous segments)
+        rmax0[has] = np.maximum.reduceat(data, B.indptr[:-1][has])
     keep = data > ROW_NOISE * rmax0[rows]  # also drops the zeros
-    rows, cols, data = rows[keep], cols[keep], data[keep]
+    if not keep.all():
+        rows, cols, data = rows[keep], cols[keep], data[keep]
     L = np.log2(data)
-    seg = _Segments(m, n, rows, cols)
+    seg = _segments(m, n, rows, cols)
     e = _ruiz_log_sparse(L, seg, np.zeros(m), np.zeros(n))
     big = L + e[0][rows] + e[1][cols] > _LOG2_NOISE
     lr, lc = _curtis_reid_log(m, n, rows[big], cols[big], L[big])
     er, ec = _ruiz_log_sparse(L, seg, np.round(lr), np.round(lc))
     return np.exp2(er), np.exp2(ec)
+
+
+_SEG = threading.local()  # the last _Segments, per thread (one pattern per Gauss-Newton run)
+
+
+def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> _Segments:
+    """:class:`_Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
+    key = (m, n, rows.tobytes(), cols.tobytes())
+    hit = _SEG.__dict__.get("last")
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    seg = _Segments(m, n, rows, cols)
+    _SEG.last = (key, seg)
+    return seg
 
 
 class _Segments:
@@ -170,6 +189,9 @@ def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
     B = np.where(B > ROW_NOISE * B.max(axis=1, keepdims=True), B, 0.0)
     nz = B > 0
     L = np.log2(B, out=np.full(B.shape, -np.inf), where=nz)
+    rows, cols = np.nonzero(nz)
+    if rows.size <= TINY_EQUILIBRATE:
+        return _equilibrate_tiny(m, n, rows, cols, L[rows, cols])
     e = _ruiz_log(L, np.zeros(m), np.zeros(n))
     # entries below NOISE of both their row's and column's largest after Ruiz: ignored by
     # Curtis--Reid (see equilibrate)
@@ -181,6 +203,49 @@ def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
 
 
 _LOG2_NOISE = float(np.log2(NOISE))
+#: Dense matrices with at most this many nonzeros are equilibrated by plain Python loops over
+#: their nonzeros (the same arithmetic in the same order: the same factors, bit for bit),
+#: where NumPy's per-call overhead is most of the time (Gauss--Newton on a pendulum
+#: re-equilibrates a 5-by-7 Jacobian at every iterate).
+TINY_EQUILIBRATE = 48
+
+
+def _equilibrate_tiny(m: int, n: int, rows: np.ndarray, cols: np.ndarray, logs: np.ndarray):
+    """:func:`_equilibrate_dense` on the nonzeros ``(rows, cols)`` (row-major order) with log2
+    magnitudes ``logs``, in Python floats (IEEE arithmetic as NumPy's, Python's ``round`` is
+    NumPy's half-to-even)."""
+    rl, cl, lv = rows.tolist(), cols.tolist(), logs.tolist()
+    entries = list(zip(rl, cl, lv))
+    ninf = -math.inf
+
+    def ruiz(er: list, ec: list) -> tuple[list, list]:
+        for _ in range(RUIZ_ITERATIONS):
+            rmax = [ninf] * m
+            cmax = [ninf] * n
+            for i, j, v in entries:
+                s_ = v + er[i] + ec[j]
+                if s_ > rmax[i]:
+                    rmax[i] = s_
+                if s_ > cmax[j]:
+                    cmax[j] = s_
+            # -round(x / 2) is 0 for |x| <= 1 (half to even), as for x = -inf (a zero row)
+            fr = [0.0 if -1.0 <= x <= 1.0 or x == ninf else float(-round(0.5 * x))
+                  for x in rmax]
+            fc = [0.0 if -1.0 <= x <= 1.0 or x == ninf else float(-round(0.5 * x))
+                  for x in cmax]
+            if not (any(fr) or any(fc)):
+                break
+            er = [a + b for a, b in zip(er, fr)]
+            ec = [a + b for a, b in zip(ec, fc)]
+        return er, ec
+
+    er, ec = ruiz([0.0] * m, [0.0] * n)
+    keep = [k for k, (i, j, v) in enumerate(entries) if v + er[i] + ec[j] > _LOG2_NOISE]
+    kr = rows[keep] if keep else rows[:0]
+    kc = cols[keep] if keep else cols[:0]
+    lr, lc = _curtis_reid_log(m, n, kr, kc, logs[keep] if keep else logs[:0])
+    er, ec = ruiz(np.round(lr).tolist(), np.round(lc).tolist())
+    return np.exp2(np.array(er, dtype=float)), np.exp2(np.array(ec, dtype=float))
 
 
 def _ruiz_log(L, er, ec) -> tuple[np.ndarray, np.ndarray]:
@@ -231,15 +296,48 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
                                       np.bincount(cols, minlength=n)]) + 1e-10
         b = -np.concatenate([np.bincount(rows, vals, minlength=m),
                              np.bincount(cols, vals, minlength=n)])
-        sol = np.linalg.solve(K, b)
+        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks (imported
+        # here: scipy.linalg loads on first use, not with daekit)
+        from scipy.linalg.lapack import dgesv
+
+        _, _, sol, info = dgesv(K, b)
+        if info != 0:  # pragma: no cover - the ridge keeps K regular
+            sol = np.linalg.lstsq(K, b, rcond=None)[0]
         return sol[:m], sol[m:]
-    P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
-    rc = np.bincount(rows, minlength=m).astype(float)
-    cc = np.bincount(cols, minlength=n).astype(float)
-    K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
-    sol = sp.linalg.spsolve(K, b)
+    sol = _curtis_reid_factor(m, n, rows, cols).solve(b)
     return sol[:m], sol[m:]
+
+
+_CR = threading.local()  # factorizations of Curtis--Reid's normal equations, per pattern
+#: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
+#: Jacobian of one pattern at every iterate.
+CR_PATTERNS = 4
+#: ... each with at most this many nonzeros in its factors (about 24 MB)
+CR_KEEP_NNZ = 2_000_000
+
+
+def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
+    """SuperLU factorization of Curtis--Reid's normal equations for the nonzeros ``(rows,
+    cols)`` of an ``m x n`` matrix (they depend on the pattern only, not on the values), kept
+    for the last ``CR_PATTERNS`` patterns of this thread."""
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    cols = np.ascontiguousarray(cols, dtype=np.int64)
+    key = (m, n, rows.tobytes(), cols.tobytes())
+    cache = _CR.__dict__.setdefault("lu", {})
+    lu = cache.get(key)
+    if lu is None:
+        k = rows.size
+        P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
+        rc = np.bincount(rows, minlength=m).astype(float)
+        cc = np.bincount(cols, minlength=n).astype(float)
+        K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
+        lu = sp.linalg.splu(K, permc_spec="COLAMD")
+        if lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ:  # kept only while it is small in memory
+            if len(cache) >= CR_PATTERNS:
+                cache.pop(next(iter(cache)))
+            cache[key] = lu
+    return lu
 
 
 def equilibrated(A):
@@ -610,6 +708,10 @@ class SparseFunction:
     def __call__(self, *args) -> sp.csr_matrix:
         data = self.values(*args)
         return sp.csc_matrix((data, self.indices, self.indptr), shape=self.shape).tocsr()
+
+    def csc(self, *args) -> sp.csc_matrix:
+        """The value as SciPy CSC (the expression's own order: no conversion)."""
+        return sp.csc_matrix((self.values(*args), self.indices, self.indptr), shape=self.shape)
 
     def dense(self, *args) -> np.ndarray:
         """The value as a dense NumPy array (for small matrices: no SciPy object made).

@@ -10,7 +10,9 @@ evaluated at **consistent points**: values that satisfy the (differentiated) equ
 parameters take their defaults, time and the inputs (and their derivatives) are held at their
 drawn or given values, and Gauss--Newton with minimum-norm steps
 (:func:`gauss_newton`, dense below ``DENSE_UNKNOWNS`` unknowns, sparse LU beyond) moves the
-unknowns onto ``G = 0``. The values of a user's ``point=`` are held and the others solved
+unknowns onto ``G = 0``, first from the draws in the units the Jacobian suggests
+(:func:`in_jacobian_units`: a solve does not depend on the units of the unknowns), then from
+the draws as they are. The values of a user's ``point=`` are held and the others solved
 for; where the given values admit no consistent completion the point is used as given (the
 user asked for it) and the status says it is not consistent. When no consistent point is
 found the caller falls back to the random point and says so (:attr:`PointStatus.consistent`
@@ -42,7 +44,8 @@ from .numerics import FastFunction, SparseFunction, equilibrate
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
-           "gauss_newton", "reduced_consistent_point", "DRAWS"]
+           "gauss_newton", "in_jacobian_units", "reduced_consistent_point", "remember_consistent",
+           "reduced_point_functions", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -114,6 +117,9 @@ class TestPoint:
         self.rng = np.random.default_rng(seed + 7919 * attempt)
         self.draw = DRAWS[attempt % len(DRAWS)]
         self.values: dict[int, float] = {}  # element hash -> value
+        #: element hashes whose values were drawn at random and not solved for since
+        #: (:func:`make_consistent` starts them in the Jacobian's own units)
+        self.drawn: set[int] = set()
         point = check_point(model, point)
         self.given: set[int] = set()  # element hashes the user gave
         self.t = point["t"][0] if "t" in point else float(self._random(1)[0])
@@ -144,6 +150,7 @@ class TestPoint:
         for h in hashes:
             if h not in vals:
                 vals[h] = float(self._random(1)[0])
+                self.drawn.add(h)
         return np.fromiter((vals[h] for h in hashes), dtype=float, count=len(hashes))
 
     def sibling(self, k: int) -> TestPoint:
@@ -183,7 +190,9 @@ class TestPoint:
 
     def assign(self, syms, vals) -> None:
         for s, v in zip(syms, vals, strict=True):
-            self.values[s.element_hash()] = float(v)
+            h = s.element_hash()
+            self.values[h] = float(v)
+            self.drawn.discard(h)
 
     def sparse(self, expr: ca.SX) -> sp.csr_matrix:
         """Numeric value of a (sparse) SX matrix at this point, as a SciPy sparse matrix
@@ -324,12 +333,66 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
             return fj.dense(pt.t, fv, w)
     else:
         def jac(w):
-            return fj(pt.t, fv, w)
+            return fj.csc(pt.t, fv, w)
 
-    w, st = gauss_newton(fun, w0, tol=tol, max_iter=max_iter, jac=jac)
-    if st.consistent:
-        pt.assign(syms, w)
+    fresh = np.fromiter((h in pt.drawn for h in key), dtype=bool, count=len(key))
+    for start in _starts(fun, jac, w0, fresh):
+        w, st = gauss_newton(fun, start, tol=tol, max_iter=max_iter, jac=jac)
+        if st.consistent:
+            pt.assign(syms, w)
+            break
     return st
+
+
+def _starts(fun, jac, w0: np.ndarray, fresh: np.ndarray):
+    """Starts of Gauss--Newton for :func:`_solve`, tried in turn. ``fresh``: which values of
+    ``w0`` were drawn at random (the others were solved for before, e.g. the lower levels of a
+    derivative array).
+
+    * All drawn: first the draws *in the Jacobian's own units*, ``w_j = dc_j r_j`` with
+      ``dc`` the column factors of the equilibrated Jacobian at that start (three rounds, the
+      fixed point of a nonlinear model's scaling), then the draws as they are. A draw of
+      ``U(0.1, 0.3)`` in a variable's unit of ``1e-6`` is ``2e5`` physically: Gauss--Newton
+      from there spread the correction of such a row over the free values (an ODE state
+      at ``1e9`` and its derivatives at ``1e19`` in the derivative array) or stalled; the column
+      factors carry the units (a column of ``c x`` gets ``~1/c``), so the first start does not
+      depend on them.
+    * Some drawn (a new level of a derivative array on the last level's point): ``w0`` as
+      it is. (Solving first for the drawn values alone, the others held, led Gauss--Newton
+      onto the singular branch ``x2 = 0`` of lecture L6.)
+    """
+    if not fresh.any() or w0.size == 0:
+        yield w0
+        return
+    if fresh.all():
+        ws = in_jacobian_units(jac, w0)
+        if ws is not w0:
+            yield ws
+    yield w0
+
+
+def in_jacobian_units(jac, r: np.ndarray, rounds: int = 3) -> np.ndarray:
+    """Random values ``r`` in the units the Jacobian suggests: ``w = dc * r`` with ``dc`` the
+    column factors of the equilibrated ``jac(w)`` (:func:`daekit.numerics.equilibrate`), a few
+    rounds from ``w = r`` (the fixed point of a nonlinear model's scaling); ``r`` itself where
+    a Jacobian is not finite at once. A column of ``c x`` gets a factor ``~ 1/c``: the start
+    does not depend on the units of the unknowns.
+
+    >>> import numpy as np
+    >>> w = in_jacobian_units(lambda w: np.array([[1e6, 1.0]]), np.array([0.2, 0.3]))
+    >>> bool(w[0] < 1e-3 < w[1])
+    True
+    """
+    ws = r
+    for _ in range(rounds):
+        J = jac(ws)
+        if not np.all(np.isfinite(J.data if sp.issparse(J) else J)):
+            break
+        nxt = equilibrate(J)[1] * r
+        if np.array_equal(nxt, ws):
+            break
+        ws = nxt
+    return ws
 
 
 def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
@@ -355,6 +418,7 @@ def consistent_point(pt: TestPoint, equations: ca.SX, starts: int = 3,
         if st2.consistent:
             for h, v in alt.values.items():
                 pt.values[h] = v
+            pt.drawn = (pt.drawn - alt.values.keys()) | alt.drawn
             pt.status = st = st2
         k += 1
     return st
@@ -396,8 +460,13 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         def scaled(Jv):
             return Jv * dr[:, None] * dc[None, :]
     else:
+        jac_any = jac
+
+        def jac(wv):  # CSC throughout (the KKT matrix and the scaling are built from it)
+            Jv = jac_any(wv)
+            return Jv if getattr(Jv, "format", None) == "csc" else sp.csc_matrix(Jv)
+
         def scaled(Jv):
-            Jv = sp.csc_matrix(Jv)
             cols = np.repeat(np.arange(Jv.shape[1]), np.diff(Jv.indptr))
             return sp.csc_matrix((Jv.data * dr[Jv.indices] * dc[cols], Jv.indices, Jv.indptr),
                                  shape=Jv.shape)
@@ -407,6 +476,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         return w, PointStatus(False, float("inf"), 0, worst=_worst(h, np.ones(h.size)))
     dr, dc = equilibrate(J)
     inv_dc = 1.0 / dc
+    row_ref = _row_max(J * dc[None, :] if dense else J @ sp.diags(dc))  # at the equilibration
 
     def merit(hv):
         return np.abs(dr * hv)
@@ -456,9 +526,16 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             # many orders of magnitude wrongly for the points where it holds
             # (the rows only: the columns' factors set the metric of the minimum-norm steps,
             # and changing it between iterates let a system with free unknowns drift)
-            Jc = J * dc[None, :] if dense else J @ sp.diags(dc)
-            dr = equilibrate(Jc)[0]
-            r = merit(h)
+            # (again only where a row's largest scaled entry moved by more than a factor of
+            # 2 since the last equilibration: within that the powers of two stand as they are)
+            Jc = J * dc[None, :] if dense else sp.csc_matrix(
+                (J.data * np.repeat(dc, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape)
+            rmax = _row_max(Jc)
+            if not (np.all((rmax == 0) == (row_ref == 0))
+                    and np.all((rmax <= 2.0 * row_ref) & (row_ref <= 2.0 * rmax))):
+                dr = equilibrate(Jc)[0]
+                row_ref = rmax
+                r = merit(h)
         d = _min_norm_step(scaled(J), dr * h)
         if d is None or not finite(d):
             break
@@ -480,6 +557,23 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
     return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+
+
+def _row_max(J) -> np.ndarray:
+    """Largest magnitude in each row of ``J`` (dense, or sparse), NaN and inf as 0."""
+    if not sp.issparse(J):
+        a = np.abs(J)
+        a[~np.isfinite(a)] = 0.0
+        return a.max(axis=1) if a.shape[1] else np.zeros(a.shape[0])
+    J = sp.csr_matrix(J)
+    a = np.abs(J.data)
+    a[~np.isfinite(a)] = 0.0
+    out = np.zeros(J.shape[0])
+    counts = np.diff(J.indptr)
+    has = counts > 0
+    if a.size:
+        out[has] = np.maximum.reduceat(a, J.indptr[:-1][has])
+    return out
 
 
 def _norm(v: np.ndarray) -> float:
@@ -549,7 +643,9 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     mu = 1e-12
     K = _kkt(sp.csc_matrix(J), mu)
     try:
-        lu = sp.linalg.splu(K, permc_spec="COLAMD")
+        # threshold partial pivoting (0.1, as MA48 and UMFPACK): less fill than strict
+        # partial pivoting; the refinement step below recovers the accuracy
+        lu = sp.linalg.splu(K, permc_spec="COLAMD", diag_pivot_thresh=0.1)
     except RuntimeError:
         return None
     rhs = np.r_[np.zeros(n), -h]
@@ -558,20 +654,60 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     return sol[:n]
 
 
-def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
-                             jac_alg: ca.SX | None = None):
-    """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
-    holds (time and inputs random, parameters at their values), or None when Gauss--Newton
-    finds none from ``starts`` random starts.
+def remember_consistent(model, pt: TestPoint) -> None:
+    """Keep the values of the consistent point ``pt`` of ``model`` (the equations and their
+    derivatives up to Pryce's offsets hold there: :func:`daekit.analyze`'s point) on the
+    model until it changes, for :func:`reduced_consistent_point` of its reduced systems (a
+    start that is consistent already: one check instead of a Gauss--Newton solve)."""
+    if pt.status is None or not pt.status.consistent:
+        return
+    model.memo("results", dict)["consistent_point"] = (
+        float(pt.t), dict(pt.values), np.asarray(model.parameter_values, dtype=float).copy())
 
-    >>> import casadi as ca, numpy as np
-    >>> import daekit as dk
-    >>> r = dk.reduce_index(dk.examples.l3())
-    >>> t, x, z, u, p = reduced_consistent_point(r)
-    >>> bool(abs(ca.Function("c", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(t, x, z, u, p)[0]) < 1e-10)
-    True
+
+def _remembered_start(r):
+    """``(t, w, u)`` of the remembered consistent point of ``r.model`` in the symbols of
+    ``r`` (``w = (x, z)``), or None (none kept, other parameter values, a symbol it lacks)."""
+    model = getattr(r, "model", None)
+    if model is None or not hasattr(model, "memo"):
+        return None
+    got = model.memo("results", dict).get("consistent_point")
+    if got is None:
+        return None
+    t, values, pv = got
+    if pv.shape != np.shape(r.p_values) or not np.array_equal(pv, np.asarray(r.p_values, float)):
+        return None
+    w = ca.vertcat(r.x, r.z)
+    if not (w.is_valid_input() and (r.u.numel() == 0 or r.u.is_valid_input())):
+        return None
+    out = []
+    for v in (w, r.u):
+        hashes = [e.element_hash() for e in ca.vertsplit(v)] if v.numel() else []
+        if any(h not in values for h in hashes):
+            return None
+        out.append(np.array([values[h] for h in hashes], dtype=float))
+    return t, out[0], out[1]
+
+
+def reduced_point_functions(r) -> tuple:
+    """``(f, jac)``: ``G = [alg; invariants]`` of the ReducedDAE ``r`` and its Jacobian with
+    respect to ``w = (x, z)``, as functions of ``(t, u, w, p)`` (``f`` returns ``[G]``, ``jac``
+    a dense array for small systems, else SciPy CSC), made once per system: the consistent
+    points of :func:`reduced_consistent_point` and the index-1 check of
+    :func:`daekit.reduction.check_index1` (rows ``:nz`` are ``d alg / dw``) share them.
+
+    >>> import daekit as dk, numpy as np
+    >>> r = dk.reduce_index(dk.examples.pendulum_planar())
+    >>> f, jac = reduced_point_functions(r)
+    >>> jac(0.0, np.zeros(0), np.ones(5), r.p_values).shape
+    (3, 5)
     """
-    rng = np.random.default_rng(seed + 31)
+    return r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, None))
+
+
+def _reduced_point_functions(r, jac_alg: ca.SX | None):
+    """The functions of :func:`reduced_consistent_point` for ``r`` (made once per system):
+    ``(f, jac)`` of ``G = [alg; invariants]`` in ``(t, u, w, p)``."""
     n = r.nx + r.nz
     alg = ca.vec(ca.SX(r.alg))
     inv = ca.vec(ca.SX(r.invariants)) if r.invariants.numel() else ca.SX(0, 1)
@@ -591,8 +727,35 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
     f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
     fj = SparseFunction([t_s, u_s, w, p_s], J)
-    jac = fj.dense if _is_dense(n, G.numel()) else fj
+    return f, (fj.dense if _is_dense(n, G.numel()) else fj.csc)
+
+
+def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
+                             jac_alg: ca.SX | None = None, remembered: bool = False):
+    """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
+    holds (time and inputs random, parameters at their values), or None when Gauss--Newton
+    finds none from ``starts`` random starts. ``remembered``: first from the consistent point
+    the analysis of ``r.model`` kept (:func:`remember_consistent`; with ``t`` None), which
+    satisfies the equations already where the reduction only rearranged them.
+
+    >>> import casadi as ca, numpy as np
+    >>> import daekit as dk
+    >>> r = dk.reduce_index(dk.examples.l3())
+    >>> t, x, z, u, p = reduced_consistent_point(r)
+    >>> bool(abs(ca.Function("c", [r.t, r.x, r.z, r.u, r.p], [r.invariants])(t, x, z, u, p)[0]) < 1e-10)
+    True
+    """
+    rng = np.random.default_rng(seed + 31)
+    n = r.nx + r.nz
+    f, jac = r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, jac_alg))
     pv = np.asarray(r.p_values, dtype=float)
+    start = _remembered_start(r) if remembered and t is None else None
+    if start is not None:
+        tv, w0, uv = start
+        wv, st = gauss_newton(lambda x: f(tv, uv, x, pv)[0], w0,
+                              jac=lambda x: jac(tv, uv, x, pv))
+        if st.consistent:
+            return tv, wv[: r.nx], wv[r.nx:], uv, pv.copy()
     for k in range(starts):
         tv = float(rng.uniform(0.1, 1.0)) if t is None else float(t)
         uv = rng.uniform(0.2, 1.2, r.nu)
@@ -600,6 +763,8 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
         # solutions are of order 1e-3 .. 1e-6 of the model's: a start at 1 diverged to 1e10)
         w0 = (rng.uniform(0.2, 1.2, n) if k == 0 else rng.standard_normal(n) if k < 3
               else rng.uniform(-1e-3, 1e-3, n) * 1e-3 ** (k - 3))
+        if k == 1:  # in the Jacobian's units (see in_jacobian_units)
+            w0 = in_jacobian_units(lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv), np.abs(w0))
         wv, st = gauss_newton(lambda x, tv=tv, uv=uv: f(tv, uv, x, pv)[0],
                               w0, jac=lambda x, tv=tv, uv=uv: jac(tv, uv, x, pv))
         if st.consistent:

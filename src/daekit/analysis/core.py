@@ -42,7 +42,14 @@ from ..numerics import (
     sparse_deficiency_rcond,
     vanishing_removed,
 )
-from ..points import DRAWS, PointFunction, TestPoint, check_point, consistent_point
+from ..points import (
+    DRAWS,
+    PointFunction,
+    TestPoint,
+    check_point,
+    consistent_point,
+    remember_consistent,
+)
 from ..structure import block_triangular, dulmage_mendelsohn, structural_index
 from ..structure.sigma import NoTransversal
 from ..threads import blas_threads, limit_blas_threads
@@ -189,13 +196,15 @@ def _easy_test(model: Model, pt: _Point) -> EasyTest:
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     keep = inc.vals == highest[inc.cols]
-    jac = _sparse_jacobian(model, inc.rows[keep], inc.cols[keep], inc.vals[keep], pt)
+    jac_at = model.memo("easy_jacobian_at", lambda: _JacobianAt(
+        model, inc.rows[keep], inc.cols[keep], inc.vals[keep]))  # made once per model
     eq_names = model.equation_names
     if n <= EASY_DENSE_LIMIT:
-        check = _rank_check(jac.toarray(), list(range(n)), list(range(n)))
+        check = _rank_check(jac_at.dense(pt), list(range(n)), list(range(n)))
         rank, rcond = check.rank, check.rcond
         names = [eq_names[i] for i in check.deficient_rows]
     else:
+        jac = jac_at(pt)
         coo = jac.tocoo()
         dm = dulmage_mendelsohn(n, n, coo.row, coo.col)
         if dm.is_square_nonsingular:
@@ -528,9 +537,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
                 v.append(var.der(r))
                 w.append(var.der(r + 1))
         levels.append(ca.jtimes(levels[-1], ca.vertcat(*v), ca.vertcat(*w)))
-        if not grown["first"]:
-            grown["first"] = ca.Function("level", ca.symvar(levels[0]), [levels[0]]).n_nodes()
-        grown["nodes"] = ca.Function("level", ca.symvar(levels[-1]), [levels[-1]]).n_nodes()
+        if not grown["first"]:  # (ca.n_nodes: the count of a Function's, without making one)
+            grown["first"] = ca.n_nodes(levels[0])
+        grown["nodes"] = ca.n_nodes(levels[-1])
         col_j.extend(cols)
         col_r.extend(int(mj) + k for mj in m)
         target.extend(int(mj) + k == sj for sj, mj in zip(s_ord, m))
@@ -770,18 +779,23 @@ class _JacobianAt:
     :meth:`daekit.Model.residual_jacobian`): ``jac(pt)`` is the numeric sparse matrix; raises
     :class:`_NonFinite` naming the equations with NaN or inf entries."""
 
-    def __init__(self, model: Model, rows, cols, orders) -> None:
+    def __init__(self, model: Model, rows, cols, orders, source: ca.SX | None = None) -> None:
         self.model = model
         self.rows = np.asarray(rows, dtype=np.int64)
         self.cols = np.asarray(cols, dtype=np.int64)
         orders = np.asarray(orders, dtype=np.int64)
+        if source is not None:  # every entry from this one (n_equations x n_unknowns) matrix
+            orders = np.zeros(self.rows.size, dtype=np.int64)
         th = model.t.element_hash()
         n_unk = model.n_unknowns
         parts, take = [], []
         nnz = 0
         for order in np.unique(orders):
             sel = np.nonzero(orders == order)[0]
-            J, cols_k = model.residual_jacobian(int(order))
+            if source is not None:
+                J, cols_k = source, np.arange(n_unk, dtype=np.int64)
+            else:
+                J, cols_k = model.residual_jacobian(int(order))
             r, cc = J.sparsity().get_triplet()  # column-major: the order of J's nonzeros
             keys = np.asarray(r, dtype=np.int64) * n_unk + cols_k[np.asarray(cc, dtype=np.int64)]
             order_of = np.argsort(keys, kind="stable")
@@ -805,18 +819,48 @@ class _JacobianAt:
         self.take = take
         self.n = len(self.rows)
 
-    def __call__(self, pt: _Point) -> sp.csr_matrix:
-        model = self.model
+        # the pattern in row-major order (as the CSR matrix's COO form lists it)
+        order = np.lexsort((self.cols, self.rows))
+        self.pattern = (self.rows[order], self.cols[order])
+
+    def _data(self, pt: _Point) -> np.ndarray:
         nz = self.f(pt.t, pt.evaluate(self.syms, self.hashes))[0]
         data = np.zeros(self.n)
         for sel, idx in self.take:
             data[sel] = np.where(idx >= 0, nz[np.maximum(idx, 0)] if nz.size else 0.0, 0.0)
         bad = ~np.isfinite(data)
         if np.any(bad):
-            names = model.equation_names
+            names = self.model.equation_names
             raise _NonFinite([names[i] for i in sorted(set(self.rows[bad].tolist()))])
-        return sp.csr_matrix((data, (self.rows, self.cols)),
+        return data
+
+    def __call__(self, pt: _Point) -> sp.csr_matrix:
+        model = self.model
+        return sp.csr_matrix((self._data(pt), (self.rows, self.cols)),
                              shape=(model.n_equations, model.n_unknowns))
+
+    def dense(self, pt: _Point) -> np.ndarray:
+        """The value as a dense array (small models: no SciPy object made)."""
+        out = np.zeros((self.model.n_equations, self.model.n_unknowns))
+        out[self.rows, self.cols] = self._data(pt)
+        return out
+
+
+def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
+    """Pryce's system Jacobian for the offsets ``(c, d)`` as a :class:`_JacobianAt` on the
+    pattern of the Sigma matrix's tight entries (``sigma_ij = d_j - c_i``): its values from
+    :meth:`daekit.Model.system_jacobian`; made once per model and offsets (analysis and
+    reduction evaluate it at their points)."""
+    c = np.asarray(c, dtype=np.int64)
+    d = np.asarray(d, dtype=np.int64)
+
+    def make() -> _JacobianAt:
+        inc = model.incidence()
+        keep = inc.vals == d[inc.cols] - c[inc.rows]
+        return _JacobianAt(model, inc.rows[keep], inc.cols[keep], inc.vals[keep],
+                           source=model.system_jacobian(c, d))
+
+    return model.memo(("system_jacobian_at", c.tobytes(), d.tobytes()), make)
 
 
 def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
@@ -842,27 +886,38 @@ def system_jacobian_singular(model: Model, c: np.ndarray, d: np.ndarray, seed: i
     >>> system_jacobian_singular(m, sig.c, sig.d)
     ['a', 'b']
     """
-    inc = model.incidence()
-    c, d = np.asarray(c), np.asarray(d)
-    keep = inc.vals == d[inc.cols] - c[inc.rows]
-    jac_at = _JacobianAt(model, inc.rows[keep], inc.cols[keep], inc.vals[keep])
+    c, d = np.asarray(c, dtype=np.int64), np.asarray(d, dtype=np.int64)
+    key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
+           model.parameter_values.tobytes())
+    memos = model.memo("results", dict)  # kept until the model changes
+    if key in memos:  # analyze has decided it at this point (or an earlier call)
+        out = memos[key]
+        return list(out) if out is not None else None
     pt = _Point(model, None, seed)
     try:
-        jac = jac_at(pt)
+        jac = system_jacobian_at(model, c, d)(pt)
     except _NonFinite:
         return None
+    bad = _singular_system_blocks(model, jac)
+    memos[key] = bad
+    return list(bad) if bad is not None else None
+
+
+def _singular_system_blocks(model: Model, jac: sp.csr_matrix) -> list[str] | None:
+    """The equations (in model order) of the singular diagonal blocks of the system
+    Jacobian's value ``jac``, or None (see :func:`system_jacobian_singular`)."""
     coo = jac.tocoo()
     n = model.n_equations
     m_ = dulmage_mendelsohn(n, n, coo.row, coo.col)
     if not m_.is_square_nonsingular:
         return None  # structurally singular: the structural analysis says so itself
     names = model.equation_names
-    bad: list[str] = []
+    bad: list[int] = []
     for br, bc in block_triangular(n, coo.row, coo.col, m_.row_match):
         ch = _rank_check(jac, br, bc)
         if ch.rank < ch.size:
-            bad += [names[i] for i in ch.rows]
-    return bad or None
+            bad += ch.rows
+    return [names[i] for i in sorted(bad)] or None
 
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
@@ -942,21 +997,33 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
     ex = expand(model, validate=False) if consistent else None
     # F_i^(k), k <= c_i: the points are made consistent with these
     expansion = ca.vertcat(*ex.levels) if consistent else None
-    jrows, jcols, jvals = inc.rows[keep], inc.cols[keep], inc.vals[keep]
+    jvals = inc.vals[keep]
 
     eq_lab, unk_lab = _components(inc)
 
-    jac_at = _JacobianAt(model, jrows, jcols, jvals)  # made once for every test point
+    highest = np.zeros(n, dtype=np.int64)
+    np.maximum.at(highest, inc.cols, inc.vals)
+    for order in np.unique(np.r_[jvals, highest]).tolist():
+        model.residual_jacobian(order)  # for the easy test; the system Jacobian's entries too
+    jac_at = system_jacobian_at(model, c, d)  # made once for every test point (and reduce)
+
+    small = n <= EASY_DENSE_LIMIT  # small: dense matrices throughout (no SciPy objects)
+    at = jac_at.dense if small else jac_at
+    pat_rows, pat_cols = jac_at.pattern
 
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
         #    (the rank there is the generic one), so structural analysis fails for sure
-        jac = jac_at(pt)
-        coo = jac.tocoo()
-        blocks_idx = block_triangular(n, coo.row, coo.col, sig.transversal)
-        jd = jac.toarray() if n <= EASY_DENSE_LIMIT else jac  # small: dense block slices
+        jac = at(pt)
+        blocks_idx = block_triangular(n, pat_rows, pat_cols, sig.transversal)
+        jd = jac
         checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
+        if pt.point is None and pt.attempt == 0:  # system_jacobian_singular's own point
+            key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
+                   model.parameter_values.tobytes())
+            model.memo("results", dict)[key] = (
+                [eq_names[i] for i in sorted(int(i) for b in sing0 for i in b)] or None)
         if sing0:  # too big for the derivative array: say so before any further work
             _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
                            [eq_names[i] for b in sing0 for i in b])
@@ -965,9 +1032,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    second consistent point, as the rank on the manifold is the larger of the two
         status = consistent_point(pt, expansion) if consistent else None
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(jac_at(pt), jac_at(pt.perturbed()))
-            if n <= EASY_DENSE_LIMIT:
-                jac_c = jac_c.toarray()
+            jac_c = _vanishing_removed(at(pt), at(pt.perturbed()))
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -981,9 +1046,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(jac_at(pt2), jac_at(pt2.perturbed()))
-                if n <= EASY_DENSE_LIMIT:
-                    jac2 = jac2.toarray()
+                jac2 = _vanishing_removed(at(pt2), at(pt2.perturbed()))
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)
@@ -1009,6 +1072,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
             if part is not None:
                 part = (confirmed[0], part[1])
         easy = _easy_test(model, pt)
+        remember_consistent(model, pt)  # a start for reduce_index's check at consistent points
         return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
                 pt.status, confirmed)
 
@@ -1050,8 +1114,9 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 #: array when structural analysis succeeds (the structural index is only an upper bound).
 CONFIRM_LIMIT = 20
 #: ... and at most this many unknowns times levels of its derivative array (the array of a
-#: high-index part grows fast: chained pendula p = 5, index 11, took 10 s to confirm)
-CONFIRM_ARRAY_LIMIT = 60
+#: high-index part grows fast: chained pendula p = 5, index 11, took 10 s to confirm; 100
+#: admits a 16-unknown index-5 part whose Pryce index 5 is truly 4, a generated case)
+CONFIRM_ARRAY_LIMIT = 100
 
 
 def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor: int):

@@ -34,16 +34,22 @@ def state_pairs(ex: Expansion, skip):
     ``skip``: None or a boolean function (j, k) -> the derivative is not a state (a dummy
     derivative, or an eliminated one). Returns the list of (j, k).
     """
-    out = []
+    d = np.asarray(ex.d, dtype=np.int64)
+    js_all, ks_all = [], []
     j0 = 0
     for var in ex.model.unknown_variables:
-        js = range(j0, j0 + var.size)
+        js = np.arange(j0, j0 + var.size, dtype=np.int64)
         j0 += var.size
-        top = max((int(ex.d[j]) for j in js), default=0)
-        for k in range(top):
-            for j in js:
-                if ex.d[j] > k and (skip is None or not skip(j, k)):
-                    out.append((j, k))
+        dv = d[js]
+        for k in range(int(dv.max()) if dv.size else 0):
+            sel = js[dv > k]
+            js_all.append(sel)
+            ks_all.append(np.full(sel.size, k, dtype=np.int64))
+    if not js_all:
+        return []
+    out = list(zip(np.concatenate(js_all).tolist(), np.concatenate(ks_all).tolist()))
+    if skip is not None:
+        out = [jk for jk in out if not skip(*jk)]
     return out
 
 
@@ -105,16 +111,31 @@ def element_names(var, k: int) -> list[str]:
 
 def pair_names(ex: Expansion, pairs) -> list[str]:
     """Original names ``"der(p)[0]"`` of the pairs ``(j, k)``."""
-    cache: dict[tuple[int, int], list[str]] = {}
-    out = []
+    pairs = list(pairs)
+    if not pairs:
+        return []
+    jk = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    var_of, elem_of = ex.model.unknown_arrays() if hasattr(ex.model, "unknown_arrays") \
+        else (None, None)
     unknowns = ex.unknowns
-    for j, k in pairs:
-        var, i = unknowns[j]
-        key = (id(var), k)
-        if key not in cache:
-            cache[key] = element_names(var, k)
-        out.append(cache[key][i])
-    return out
+    if var_of is None or var_of.size != len(unknowns):
+        out = []
+        for j, k in jk.tolist():
+            var, i = unknowns[j]
+            out.append(element_names(var, k)[i])
+        return out
+    variables = ex.model.unknown_variables
+    # every name of each (variable, order) met, once; then one gather
+    key = var_of[jk[:, 0]] * (int(jk[:, 1].max()) + 1) + jk[:, 1]
+    uniq, inv = np.unique(key, return_inverse=True)
+    names: list[str] = []
+    base = np.empty(uniq.size, dtype=np.int64)
+    width = int(jk[:, 1].max()) + 1
+    for g, kk in enumerate(uniq.tolist()):
+        base[g] = len(names)
+        names += element_names(variables[kk // width], kk % width)
+    flat = np.array(names, dtype=object)
+    return flat[base[inv] + elem_of[jk[:, 0]]].tolist()
 
 
 def assemble(ex, states, zpairs, alg, invariants, invariant_names, method):

@@ -78,7 +78,7 @@ from .assemble import (
 )
 from .differentiate import derivative_name
 from .invariants import attach_declared, declared_dummy
-from .reduce import OTHER_METHODS, amended_expansion, check_index1
+from .reduce import OTHER_METHODS, amended_expansion, check_amendments, check_index1
 
 __all__ = ["dummy_derivatives", "reselect", "selection_condition", "map_values"]
 
@@ -317,6 +317,42 @@ def _select_stage(J: sp.csr_matrix, R: np.ndarray, C: np.ndarray):
     return [(R, C, cols, cond)], None
 
 
+
+#: Most rows of the expansion for which the selection is checked at a consistent point.
+CONSISTENT_SELECTION_LIMIT = 100
+
+
+def _at_consistent_point(ex, Jf, Xs, Us, J, blocks, seed: int):
+    """The system Jacobian at a consistent point (the expansion holds, :mod:`daekit.points`),
+    entries that vanish on the solutions removed (:func:`daekit.numerics.vanishing_removed`
+    against ``J``, the random point's), when a block chosen at the random point is singular
+    there; else None (also when no consistent point is found or the model is big). A
+    constraint times ``1.5 + sin(y)`` has ``d/dy`` = the constraint times ``cos(y)``: large
+    at a random point, so that ``y`` was chosen a dummy, and zero on the solutions, where the
+    selection then failed silently (a DOF lost)."""
+    from ..points import TestPoint, consistent_point
+
+    levels = ca.vertcat(*ex.levels)
+    if levels.numel() > CONSISTENT_SELECTION_LIMIT or not blocks:
+        return None
+    model = ex.model
+    pt = TestPoint(model, None, seed)
+    if not consistent_point(pt, levels).consistent:
+        return None
+    P0 = np.asarray([float(v.default[i]) for v in model.parameters for i in range(v.size)])
+    X0 = pt.evaluate(ca.vertsplit(Xs))
+    U0 = pt.evaluate(ca.vertsplit(Us)) if Us.numel() else np.zeros(0)
+    Jc = numerics.to_scipy(ca.DM(Jf(pt.t, X0, U0, P0))).tocsr()
+    if not np.all(np.isfinite(Jc.data)) or Jc.shape != J.shape:
+        return None
+    Jc = numerics.vanishing_removed(Jc, J)
+    for Rb, Cb, cols in blocks:
+        A = _dense(Jc, Rb, Cb)[:, cols]
+        if numerics.rank_info(A).rank < len(Rb):
+            return Jc
+    return None
+
+
 @limit_blas_threads
 def dummy_derivatives(
     model: Model, point: Mapping | None = None, check: bool = True, seed: int = 0
@@ -365,42 +401,55 @@ def dummy_derivatives(
             "point={...})"
         )
     eq_names = ex.equation_names
-    selected = np.arange(n)
-    dummy: set[tuple[int, int]] = set()
-    stages, blocks = [], []
-    for s in range(1, int(c.max(initial=0)) + 1):
-        R = np.nonzero(c >= s)[0]
-        C = selected[d[selected] >= s]
-        chosen, bad_rows = _select_stage(J, R, C)
-        if chosen is None:
-            bad = [derivative_name(eq_names[i], int(c[i]) - s) for i in bad_rows]
-            shown = ", ".join(repr(b) for b in bad[:12]) + (
-                f" ... ({len(bad)} equations)" if len(bad) > 12 else "")
-            raise ReductionError(
-                f"model {model.name!r}: dummy-derivative selection failed at stage {s}: the "
-                f"equations {shown} cannot be solved for any choice of derivatives at the "
-                "selection point (the system Jacobian is singular there); give another point "
-                "(point={...}) or use method='differentiate'"
+
+    def select(J):
+        """The stages' selection from the system Jacobian ``J`` (CSR)."""
+        selected = np.arange(n)
+        dummy: set[tuple[int, int]] = set()
+        stages, blocks = [], []
+        for s in range(1, int(c.max(initial=0)) + 1):
+            R = np.nonzero(c >= s)[0]
+            C = selected[d[selected] >= s]
+            chosen, bad_rows = _select_stage(J, R, C)
+            if chosen is None:
+                bad = [derivative_name(eq_names[i], int(c[i]) - s) for i in bad_rows]
+                shown = ", ".join(repr(b) for b in bad[:12]) + (
+                    f" ... ({len(bad)} equations)" if len(bad) > 12 else "")
+                raise ReductionError(
+                    f"model {model.name!r}: dummy-derivative selection failed at stage {s}: the "
+                    f"equations {shown} cannot be solved for any choice of derivatives at the "
+                    "selection point (the system Jacobian is singular there); give another point "
+                    "(point={...}) or use method='differentiate'"
+                )
+            S = np.sort(np.concatenate([Cb[cols] for _, Cb, cols, _ in chosen]))
+            for j in S:
+                dummy.add((int(j), int(d[j]) - s))
+            stages.append(
+                {
+                    "stage": s,
+                    "equations": [derivative_name(eq_names[i], int(c[i]) - s) for i in R],
+                    "candidates": [ex.unknowns[j][0].element(ex.unknowns[j][1], int(d[j]) - s)
+                                   for j in C],
+                    "dummies": [ex.unknowns[j][0].element(ex.unknowns[j][1], int(d[j]) - s)
+                                for j in S],
+                    "condition": max(cond for *_, cond in chosen),
+                    "blocks": len(chosen),
+                }
             )
-        S = np.sort(np.concatenate([Cb[cols] for _, Cb, cols, _ in chosen]))
-        for j in S:
-            dummy.add((int(j), int(d[j]) - s))
-        stages.append(
-            {
-                "stage": s,
-                "equations": [derivative_name(eq_names[i], int(c[i]) - s) for i in R],
-                "candidates": [ex.unknowns[j][0].element(ex.unknowns[j][1], int(d[j]) - s)
-                               for j in C],
-                "dummies": [ex.unknowns[j][0].element(ex.unknowns[j][1], int(d[j]) - s)
-                            for j in S],
-                "condition": max(cond for *_, cond in chosen),
-                "blocks": len(chosen),
-            }
-        )
-        if len(chosen) > 1:
-            stages[-1]["condition_estimate"] = _condition_estimate(J, R, C, S)
-        blocks += [(Rb, Cb, cols) for Rb, Cb, cols, _ in chosen]
-        selected = S
+            if len(chosen) > 1:
+                stages[-1]["condition_estimate"] = _condition_estimate(J, R, C, S)
+            blocks += [(Rb, Cb, cols) for Rb, Cb, cols, _ in chosen]
+            selected = S
+
+        return stages, blocks, dummy
+
+    stages, blocks, dummy = select(J)
+    if point is None:
+        Jc = _at_consistent_point(ex, Jf, Xs, Us, J, blocks, seed)
+        if Jc is not None:  # a chosen block singular on the solutions: select there
+            stages, blocks, dummy = select(Jc)
+            for st in stages:
+                st["at"] = "a consistent point"
 
     states = state_pairs(ex, skip=lambda j, k: (j, k) in dummy)
     dpairs = sorted(dummy, key=lambda jk: (jk[1], jk[0]))
@@ -435,6 +484,8 @@ def dummy_derivatives(
     r.selection_blocks = blocks
     if check:
         check_index1(r, seed=seed)
+        if amendments:  # the DOF and the model's equations at its solutions, as for
+            check_amendments(model, r, seed=seed)  # method="differentiate"
     return r
 
 

@@ -149,6 +149,8 @@ def _candidates(ex: Expansion, highest: bool = False) -> list[tuple]:
     """
     c, d = ex.c, ex.d
     F = ex.levels[0]
+    # the model's own equations (not amended): the rows of its system Jacobian, made once
+    Jsys = ex.model.system_jacobian(c, d) if F is ex.model.residual else None
     out = []
     values = sorted(set(int(v) for v in c[c >= (0 if highest else 1)]))
     for cv in values:
@@ -156,8 +158,10 @@ def _candidates(ex: Expansion, highest: bool = False) -> list[tuple]:
         cols = np.nonzero(d - cv >= 1)[0] if cv >= 1 else np.nonzero(d >= 1)[0]
         if not len(cols) or not len(rows):
             continue
-        X = ex.unknown(d - cv, cols)
-        J = ca.jacobian(F[rows.tolist()], X)
+        if Jsys is not None:  # dF_i / dx_j^(d_j - c_i) with c_i = cv: the same entries
+            J = Jsys[rows.tolist(), cols.tolist()]
+        else:
+            J = ca.jacobian(F[rows.tolist()], ex.unknown(d - cv, cols))
         rr, cc, exprs, vals = _constant_coefficients(J, ex.model)
         for r, col, e, a in zip(rr, cc, exprs, vals, strict=True):
             j = int(cols[col])

@@ -514,6 +514,8 @@ def amended_expansion(model: Model, seed: int = 0, max_rounds: int = 20):
         # the equation replaced: offset theta, from the singular block where possible
         cand = [int(i) for i in I if ex.c[i] == theta]
         l = next((i for i in cand if i in set(block_rows)), cand[0])
+        if u[l] < 0:  # the replaced equation keeps its sign (the null vector's is arbitrary)
+            u = -u
         F = work.residual
         parts, terms = [], []
         for i in I:
@@ -674,7 +676,7 @@ def _z_block_singular_rows(A: np.ndarray, nx: int):
 CONSISTENT_CHECK_LIMIT = 1000
 
 
-def _perturbed(cp, seed: int, at_random, f: ca.Function):
+def _perturbed(cp, seed: int, at_random, f):
     """``f`` at the consistent point ``cp = (t, x, z, u, p)`` with ``x`` and ``z`` multiplied
     by factors from ``U(0.5, 1.5)``: the reference of :func:`daekit.numerics.vanishing_removed`
     in the units of the point (see :meth:`daekit.points.TestPoint.perturbed`); ``at_random``
@@ -683,16 +685,15 @@ def _perturbed(cp, seed: int, at_random, f: ca.Function):
     t, x, z, u, p = cp
     x1 = np.where(x != 0, x * rng.uniform(0.5, 1.5, x.size), rng.uniform(0.2, 1.2, x.size))
     z1 = np.where(z != 0, z * rng.uniform(0.5, 1.5, z.size), rng.uniform(0.2, 1.2, z.size))
-    val = f(t, x1, z1, u, p)
-    ref = np.asarray(val.full(), dtype=float) if not sp.issparse(at_random) else _to_scipy(val)
+    ref = f(t, x1, z1, u, p)
     return ref if np.all(np.isfinite(ref.data if sp.issparse(ref) else ref)) else at_random
 
 
-def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
-                           jac_alg=None):
+def _singular_on_solutions(r: ReducedDAE, f, seed: int, at_random, jac_alg=None):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
-    ``r.info["index1_check"]``. Entries that vanish on the solutions (below
+    ``r.info["index1_check"]``. ``f(t, x, z, u, p)``: the matrix the check ranks (see
+    :func:`check_index1`). Entries that vanish on the solutions (below
     :data:`daekit.numerics.VANISH` of their value ``at_random``, the matrix at a random point)
     are zero there: equilibration would otherwise make their rounding residue count."""
     from ..points import reduced_consistent_point
@@ -703,7 +704,8 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
         return None
     bad = None
     for k in range(2):
-        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg)
+        # the first from the analysis's consistent point of the model where there is one
+        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg, remembered=k == 0)
         if cp is None:
             if bad is not None:  # singular at the one consistent point found: singular
                 return bad
@@ -711,13 +713,12 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
             r.info["index1_check_at"] = "a random point (no consistent point found)"
             return None
         ref = _perturbed(cp, seed + k, at_random, f)
+        A = f(*cp)
         if r.nz <= 64:  # small: dense SVD at once (no sparse machinery per call)
-            A = np.asarray(f(*cp).full(), dtype=float)
             if not np.all(np.isfinite(A)):
                 continue
             bad = _z_block_singular_rows(numerics.vanishing_removed(A, ref), r.nx)
         else:
-            A = _to_scipy(f(*cp))
             if not np.all(np.isfinite(A.data)):
                 continue
             bad = _singular_rows(numerics.vanishing_removed(A, ref).tocsc())
@@ -726,6 +727,40 @@ def _singular_on_solutions(r: ReducedDAE, f: ca.Function, seed: int, at_random,
             r.info["index1_check_at"] = "a consistent point"
             return None
     return bad
+
+
+def _check_matrix(r: ReducedDAE, small: bool):
+    """``f(t, x, z, u, p)``: what :func:`check_index1` ranks -- ``d alg / d(x, z)`` dense
+    (``small``) or ``d alg / d z`` as SciPy CSC. Up to ``CONSISTENT_CHECK_LIMIT`` unknowns
+    from the functions the consistent points use (:func:`daekit.points.reduced_point_functions`,
+    rows ``:nz``), made once per system; beyond, one CasADi function of the block itself."""
+    from ..points import reduced_point_functions
+
+    w = ca.vertcat(r.x, r.z)
+    nx, nz = r.nx, r.nz
+    if w.is_valid_input() and nx + nz <= CONSISTENT_CHECK_LIMIT:
+        _, jac = reduced_point_functions(r)
+
+        def shared(t, x, z, u, p):
+            A = jac(t, u, np.concatenate([np.ravel(x), np.ravel(z)]), p)
+            if small:
+                A = A.toarray() if sp.issparse(A) else np.asarray(A)
+                return np.array(A[:nz], dtype=float)
+            A = sp.csr_matrix(A)[:nz].tocsc()
+            return A[:, nx:]
+
+        return shared
+    # small: d alg / d(x, z), and the z block ranked in the equilibration of the whole (an
+    # entry of d alg / d z that is rounding residue of a cancelled term, 1e-16 beside the
+    # row's x entries, must not be scaled up to unit size: the row does not involve z)
+    J = ca.jacobian(r.alg, w) if small else ca.jacobian(r.alg, r.z)
+    fn = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
+
+    def own(t, x, z, u, p):
+        val = fn(t, x, z, u, p)
+        return np.asarray(val.full(), dtype=float) if small else _to_scipy(val)
+
+    return own
 
 
 def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
@@ -740,29 +775,17 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
     if r.nz == 0:  # an ODE (alg has as many rows as z)
         r.info["index1_check"] = "passed"
         return
-    w = ca.vertcat(r.x, r.z)
-    # d alg / d(x, z) once: its z columns here, all of it for the consistent point
-    Jw = ca.jacobian(ca.vec(ca.SX(r.alg)), w) if (
-        w.is_valid_input() and r.nx + r.nz <= CONSISTENT_CHECK_LIMIT) else None
     small = r.nz <= 64  # small: dense SVD at once (no sparse machinery per call)
-    # small: d alg / d(x, z), and the z block ranked in the equilibration of the whole (an
-    # entry of d alg / d z that is rounding residue of a cancelled term, 1e-16 beside the
-    # row's x entries, must not be scaled up to unit size: the row does not involve z)
-    if small:
-        J = Jw if Jw is not None else ca.jacobian(r.alg, w)
-    else:
-        J = Jw[:, r.nx:] if Jw is not None else ca.jacobian(r.alg, r.z)
-    f = ca.Function("Jz", [r.t, r.x, r.z, r.u, r.p], [J])
+    f = _check_matrix(r, small)
     bad, finite = None, False
     for t, x, z, u, p in _random_points(r, seed, points):
+        A = f(t, x, z, u, p)
         if small:
-            A = np.asarray(f(t, x, z, u, p).full(), dtype=float)
             if not np.all(np.isfinite(A)):
                 continue
             finite = True
             bad = _z_block_singular_rows(A, r.nx)
         else:
-            A = _to_scipy(f(t, x, z, u, p))
             if not np.all(np.isfinite(A.data)):
                 continue
             finite = True
@@ -773,7 +796,7 @@ def check_index1(r: ReducedDAE, seed: int = 0, points: int = 3) -> None:
         # nonsingular at a random point; on the solutions (alg = 0 and the invariants) it may
         # still be singular (a constraint times a factor that vanishes there): check at
         # consistent points (daekit.points), up to CONSISTENT_CHECK_LIMIT unknowns
-        bad = _singular_on_solutions(r, f, seed, A, Jw)
+        bad = _singular_on_solutions(r, f, seed, A)
         if bad is None:
             return
     if not finite:

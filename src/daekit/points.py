@@ -316,22 +316,46 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
         fixed = [s for s in ca.symvar(G) if s.element_hash() not in moving and s.element_hash() != th]
         W = ca.vertcat(*syms) if syms else ca.SX(0, 1)
         Fx = ca.vertcat(*fixed) if fixed else ca.SX(0, 1)
-        f = FastFunction(ca.Function("consistency", [model.t, Fx, W], [G]))
-        fj = SparseFunction([model.t, Fx, W], ca.jacobian(G, W))
-        made = (fixed, f, fj)
+        JG = ca.jacobian(G, W)
+        if _is_dense(len(syms), G.numel()):
+            # small: G and the nonzeros of its Jacobian from one function (one CasADi
+            # Function made instead of two; the Jacobian at the point just evaluated is free)
+            both = FastFunction(ca.Function("consistency", [model.t, Fx, W],
+                                            [G, JG.nz[:] if JG.nnz() else ca.SX(0, 1)]))
+            colind, row = JG.sparsity().get_ccs()
+            rows = np.asarray(row, dtype=np.int64)
+            cols = np.repeat(np.arange(JG.shape[1]), np.diff(np.asarray(colind, dtype=np.int64)))
+            made = (fixed, both, (JG.shape, rows, cols))
+        else:
+            f = FastFunction(ca.Function("consistency", [model.t, Fx, W], [G]))
+            made = (fixed, f, SparseFunction([model.t, Fx, W], JG))
         if cache is not None:
             cache[key] = made
     fixed, f, fj = made
     fv = pt.evaluate(fixed)
     w0 = pt.evaluate(syms)
 
-    def fun(w):
-        return f(pt.t, fv, w)[0]
+    if isinstance(fj, tuple):
+        shape, rows, cols = fj
+        last: dict = {}
 
-    if _is_dense(len(syms), G.numel()):
+        def both_at(w):
+            kw = np.asarray(w, dtype=float).tobytes()
+            if last.get("w") != kw:
+                last["w"], last["out"] = kw, f(pt.t, fv, w)
+            return last["out"]
+
+        def fun(w):
+            return both_at(w)[0]
+
         def jac(w):
-            return fj.dense(pt.t, fv, w)
+            out = np.zeros(shape)
+            out[rows, cols] = both_at(w)[1]
+            return out
     else:
+        def fun(w):
+            return f(pt.t, fv, w)[0]
+
         def jac(w):
             return fj.csc(pt.t, fv, w)
 

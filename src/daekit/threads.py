@@ -59,6 +59,11 @@ def _controller():
         except ImportError:  # pragma: no cover - threadpoolctl is a dependency
             _state["controller"] = False
         else:
+            # SciPy's wheels bring their own OpenBLAS beside NumPy's, loaded with
+            # scipy.linalg (which daekit imports lazily): load it first, so that the
+            # controller, made once, knows both
+            import scipy.linalg  # noqa: F401
+
             _state["controller"] = ThreadpoolController()
     return _state["controller"]
 

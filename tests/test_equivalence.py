@@ -443,6 +443,11 @@ def test_dummy_derivative_dof_and_free():
 #: units, 1e5 away physically in units of 1e-6, stalled or drifted to values of 1e19), or the
 #: structural index of a 16-unknown part was not confirmed (seed 393).
 FORMERLY_WRONG = [7, 32, 96, 104, 135, 224, 263, 276, 393, 488]
+#: Seed 229 (session 4): ``(1.5 + sin(0.45 z0)) (0.066 x0_0' - 2286 x0_1)`` puts z0 into the
+#: equation and opens a transversal whose entry vanishes on the solutions; Gauss-Newton
+#: stalled from the first draw, and the verdict stood on the random point (index 2 / DOF 1
+#: against the true 3 / 0): two more draws are tried now.
+FORMERLY_WRONG += [229]
 
 
 @pytest.mark.parametrize("seed", FORMERLY_WRONG)

@@ -17,8 +17,8 @@ Rows, all from one run:
 4. ``dk.ensemble(..., executor=client)`` on a ``dask.distributed.LocalCluster`` with two worker
    processes (the cluster started before the timing, warmed up on a few samples).
 
-Rows 1-3 and the simulate calls alone run in turn, REPEAT (3) rounds, the best round of each
-kept (a new process pool in every round); the Dask row is the best of 3 on one cluster. This
+Rows 1-3 and the simulate calls alone run in turn, REPEAT (5) rounds, the best round of each
+kept (a new process pool in every round); the Dask row is the best of 5 on one cluster. This
 machine's CPU is shared with other virtual machines (``top`` shows their steal time, up to
 50 %), so single runs of one row scatter widely.
 
@@ -44,7 +44,7 @@ import daekit as dk
 
 T_END, N_OUT, TOL = 10.0, 1001, 1e-8
 WORKERS = 2
-REPEAT = 3
+REPEAT = 5
 
 
 def make_samples(n: int) -> list[dict]:

@@ -375,8 +375,9 @@ def _install(key: str, blob: bytes) -> None:
             _SYSTEMS[key] = pickle.loads(blob)  # noqa: S301 - our own serialization
 
 
-def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, dict]]:
-    """Run a chunk of samples in a worker: ``[(index, result dict), ...]``.
+def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> bytes:
+    """Run a chunk of samples in a worker: ``[(index, result dict), ...]`` as
+    :func:`_dump_results` bytes.
 
     CasADi's symbolic objects are not thread-safe (initialize builds SX expressions): chunks
     given to threads of one process (a thread pool, a Dask worker with several threads) run
@@ -392,7 +393,55 @@ def _run_chunk(key: str, blob: bytes | None, payload: bytes) -> list[tuple[int, 
         # one BLAS thread while the samples run (a no-op in daekit's own workers, which have
         # one already): the workers share the cores, and more threads only compete for them
         with blas_threads(1):
-            return [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+            pairs = [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+        return _dump_results(pairs, r)
+
+
+class _SendPickler(pickle.Pickler):
+    """Results of a worker: the system by reference (the receiver has it), trajectories as
+    their state arrays and a recipe for the other columns
+    (:func:`daekit.simulate.trajectory.compact_pickling`)."""
+
+    def __init__(self, file, system) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.system = system
+
+    def persistent_id(self, obj):
+        return "daekit-system" if obj is self.system else None
+
+
+class _ReceiveUnpickler(pickle.Unpickler):
+    def __init__(self, file, system) -> None:
+        super().__init__(file)
+        self.system = system
+
+    def persistent_load(self, pid):
+        if pid != "daekit-system":
+            raise pickle.UnpicklingError(f"daekit.ensemble: unknown reference {pid!r}")
+        return self.system
+
+
+def _dump_results(pairs: list, system) -> bytes:
+    """The chunk's results as bytes: measured on 25 3D-pendulum trajectories of 1001 points,
+    2.5 MB instead of 5.0 MB, and no column computed in the worker (8-20 ms a chunk)."""
+    import io
+
+    from .simulate.trajectory import compact_pickling
+
+    buf = io.BytesIO()
+    with compact_pickling():
+        _SendPickler(buf, system).dump(pairs)
+    return buf.getvalue()
+
+
+def _load_results(blob, system) -> list:
+    """The results of :func:`_dump_results`, their trajectories computing the other columns
+    with ``system`` (this process's own) when first read."""
+    import io
+
+    if not isinstance(blob, (bytes, bytearray)):
+        return blob
+    return _ReceiveUnpickler(io.BytesIO(blob), system).load()
 
 
 def _run_one(r, s: dict, job: dict) -> dict:
@@ -501,6 +550,23 @@ def _chunks(items: list, n_chunks: int) -> list[list]:
     return [items[k:k + size] for k in range(0, len(items), size)]
 
 
+def _guided_chunks(items: list, workers: int) -> list[list]:
+    """Chunks that shrink as the sweep goes (OpenMP's *guided* schedule): each takes the
+    remaining samples over twice the workers, so the first ones are large (few transfers) and
+    the last ones small (the workers finish together). Measured on 200 3D-pendulum samples
+    with 2 workers, equal chunks of 25 left one worker idle 36-94 ms at the end.
+
+    >>> [len(c) for c in _guided_chunks(list(range(20)), 2)]
+    [5, 4, 3, 2, 2, 1, 1, 1, 1]
+    """
+    out, k, n = [], 0, len(items)
+    while k < n:
+        size = max(1, math.ceil((n - k) / (2 * max(1, workers))))
+        out.append(items[k:k + size])
+        k += size
+    return out
+
+
 def ensemble(
     system,
     t,
@@ -545,7 +611,8 @@ def ensemble(
     params, inputs : dict, optional
         Parameter values and inputs shared by all samples (as for :func:`daekit.simulate`).
     chunksize : int, optional
-        Samples per task (default: about four tasks per worker).
+        Samples per task (default: chunks that shrink as the sweep goes, the first the
+        samples over twice the workers, the last single samples).
     **simulate_options
         Passed to :func:`daekit.simulate` (``stabilization``, ``rtol``, ``atol``, ...).
 
@@ -681,8 +748,8 @@ def ensemble(
                 f"ensemble: executor must be None, 'serial', a concurrent.futures.Executor or a "
                 f"dask.distributed.Client, got {type(executor).__name__}"
             )
-        per = chunksize or max(1, math.ceil(len(samp) / (4 * stats["workers"])))
-        chunks = _chunks(indexed, math.ceil(len(samp) / per))
+        chunks = (_chunks(indexed, math.ceil(len(samp) / chunksize)) if chunksize
+                  else _guided_chunks(indexed, stats["workers"]))
         stats["chunks"] = len(chunks)
         # how many times the serialized system travels: once per worker process (initializer
         # or scatter); with a foreign executor once per chunk (deserialized once per process)
@@ -703,7 +770,7 @@ def ensemble(
                 done_iter = as_completed(futs)
             n_done = 0
             for f in done_iter:
-                pairs = f.result()
+                pairs = _load_results(f.result(), r)
                 take(pairs)
                 n_done += len(pairs)
                 bar.update(n_done, failed)

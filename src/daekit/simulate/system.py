@@ -260,17 +260,36 @@ def make_trajectory(r, tg, X, Z, U, pv, stats, evaluator: Evaluator | None = Non
     Z = np.array(Z, dtype=float, copy=True).reshape(n, r.nz)
     U = np.array(U, dtype=float, copy=True).reshape(n, r.nu)
     pv = np.asarray(pv, dtype=float).ravel()
-    arrays = {"x": X, "z": Z, "u": U}
-    ready = {k: arrays[a][:, i] for k, (a, i) in ev.direct.items()}
-    ready.update({k: np.full(n, v) for k, v in ev.const.items()})
-
-    def rest() -> dict:
-        vals, _ = ev.values(tg, X, Z, U, pv)
-        return vals
-
-    cols = LazyColumns(ready, ev.rest_names, rest, order=ev.names)
+    recipe = StateColumns(r, tg, X, Z, U, pv, ev)
+    cols = LazyColumns(recipe.ready(), ev.rest_names, recipe.rest, order=ev.names, recipe=recipe)
     inv = (lambda: ev.invariants(tg, X, Z, U, pv)) if ev.ninv else None
     return Trajectory(tg, cols, inv, list(r.invariant_names), stats)
+
+
+class StateColumns:
+    """A trajectory's columns from its state arrays: ``ready()`` those that are elements of
+    ``x``, ``z``, ``u`` (views) or constants, ``rest()`` the others (one mapped CasADi call).
+    Pickled as the system and the arrays (inside
+    :func:`~daekit.simulate.trajectory.compact_pickling` only); unpickled, it evaluates with
+    that system's own :class:`Evaluator`, made once per system."""
+
+    def __init__(self, r, tg, X, Z, U, pv, ev: Evaluator | None = None) -> None:
+        self.r, self.tg, self.X, self.Z, self.U, self.pv = r, tg, X, Z, U, pv
+        self.ev = ev if ev is not None else r.derived("simulate.evaluator", Evaluator)
+
+    def ready(self) -> dict:
+        n = self.tg.size
+        arrays = {"x": self.X, "z": self.Z, "u": self.U}
+        out = {k: arrays[a][:, i] for k, (a, i) in self.ev.direct.items()}
+        out.update({k: np.full(n, v) for k, v in self.ev.const.items()})
+        return out
+
+    def rest(self) -> dict:
+        vals, _ = self.ev.values(self.tg, self.X, self.Z, self.U, self.pv)
+        return vals
+
+    def __reduce__(self):
+        return (StateColumns, (self.r, self.tg, self.X, self.Z, self.U, self.pv))
 
 
 def reraise_input_error(system: System) -> None:

@@ -16,8 +16,10 @@ Example
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable, Iterable, Mapping, MutableMapping
+import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping, MutableMapping
 
 import numpy as np
 
@@ -26,7 +28,37 @@ from ..model import NameNotFoundError, expand_name, select_name
 from ..wording import count
 from .storage import read_trajectory, save_trajectory
 
-__all__ = ["Trajectory", "LazyColumns", "NameNotFoundError", "expand_name", "load_trajectory"]
+__all__ = ["Trajectory", "LazyColumns", "NameNotFoundError", "expand_name", "load_trajectory",
+           "compact_pickling"]
+
+_COMPACT = threading.local()
+
+
+@contextlib.contextmanager
+def compact_pickling() -> Iterator[None]:
+    """Inside the block, trajectories whose columns are still pending pickle as their state
+    arrays and a *recipe* for the rest (:class:`LazyColumns` with ``recipe=``), not as every
+    column computed: about half the bytes, and no column computed by the sender. The recipe
+    holds the system it was made from, so the receiver must know that system (an ensemble's
+    workers send to the process that gave them the system; see :mod:`daekit.ensemble`).
+    Outside the block a trajectory pickles with every value computed, readable anywhere.
+
+    >>> import pickle
+    >>> with compact_pickling():
+    ...     blob = pickle.dumps(LazyColumns({"x": np.ones(2)}, [], dict))
+    >>> pickle.loads(blob)["x"].tolist()
+    [1.0, 1.0]
+    """
+    before = getattr(_COMPACT, "on", False)
+    _COMPACT.on = True
+    try:
+        yield
+    finally:
+        _COMPACT.on = before
+
+
+def _compact() -> bool:
+    return getattr(_COMPACT, "on", False)
 
 
 class LazyColumns(MutableMapping):
@@ -44,12 +76,15 @@ class LazyColumns(MutableMapping):
     """
 
     def __init__(self, ready: Mapping[str, np.ndarray], pending: Iterable[str],
-                 compute: Callable[[], Mapping[str, np.ndarray]], order: Iterable[str] | None = None
-                 ) -> None:
+                 compute: Callable[[], Mapping[str, np.ndarray]], order: Iterable[str] | None = None,
+                 recipe=None) -> None:
         self._d = dict(ready)
         self._pending = set(pending)
         self._compute: Callable | None = compute if self._pending else None
         self._order = list(order) if order is not None else [*self._d, *pending]
+        # optional: a picklable object with ready() and rest(), the same columns as ``ready``
+        # and ``compute`` (pickled in its place inside compact_pickling())
+        self._recipe = recipe
 
     def _fill(self) -> None:
         fn, self._compute = self._compute, None
@@ -78,6 +113,7 @@ class LazyColumns(MutableMapping):
         return len(self._order)
 
     def __setitem__(self, key: str, value) -> None:
+        self._recipe = None  # changed: no longer what the recipe makes
         if key not in self:
             self._order.append(key)
         self._pending.discard(key)
@@ -86,12 +122,19 @@ class LazyColumns(MutableMapping):
     def __delitem__(self, key: str) -> None:
         if key not in self:
             raise KeyError(key)
+        self._recipe = None
         self._pending.discard(key)
         self._d.pop(key, None)
         self._order.remove(key)
 
     def __reduce__(self):  # pickled (and deep-copied) as the plain dict of all columns
+        if _compact() and self._recipe is not None and self._pending:
+            return (_lazy_from_recipe, (self._recipe, sorted(self._pending), self._order))
         return (dict, (dict(self.items()),))
+
+
+def _lazy_from_recipe(recipe, pending: list[str], order: list[str]) -> LazyColumns:
+    return LazyColumns(recipe.ready(), pending, recipe.rest, order, recipe)
 
 
 def _derivative_name(element: str) -> str:
@@ -202,7 +245,8 @@ class Trajectory:
         state = dict(self.__dict__)
         state["_invariants"] = self.invariants
         state.pop("_invariants_fn", None)
-        state["values"] = dict(self.values.items())
+        state["values"] = self.values if _compact() and isinstance(self.values, LazyColumns) \
+            else dict(self.values.items())
         return state
 
     # ------------------------------------------------------------------ access

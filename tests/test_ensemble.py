@@ -125,6 +125,23 @@ def test_serial_and_thread_pool_identical(planar, local):
         assert np.array_equal(thr[k]["x"], local[i]["x"])
 
 
+def test_shipped_trajectories_compute_their_other_columns_here(planar):
+    """Workers send the state arrays and a recipe (the system by reference); the columns that
+    are not elements of x, z, u are computed here when read: all equal to a serial run's,
+    bit for bit, and a shipped trajectory pickles as usual afterwards (every column)."""
+    ser = run(planar, "serial", samples=swing_samples()[:2])
+    local = run(planar, None, samples=swing_samples()[:2], chunksize=1)
+    assert local.stats["executor"] == "processes"
+    shipped = local[0]
+    pending = set(shipped.values._pending)
+    assert pending, "nothing was left to compute here"
+    for name in ser[0].names:
+        assert np.array_equal(shipped[name], ser[0][name]), name
+    again = pickle.loads(pickle.dumps(local[1]))
+    assert isinstance(again.values, dict) and set(again.names) == set(ser[1].names)
+    assert np.array_equal(again["der(y)"], ser[1]["der(y)"])
+
+
 def test_failing_sample_is_named_and_the_sweep_goes_on(planar):
     samples = swing_samples()[:3]
     samples.insert(1, {"L": 1.0, "x": 1.5})  # |x| > L: contradicts the rod

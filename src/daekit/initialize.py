@@ -538,17 +538,20 @@ def initialize(
     expr_k = np.nonzero(sc.sym_hash[used] == -1)[0] if used.size else used
     unit_k = np.nonzero((sc.sym_hash[used] != -1) & (sc.w_pos[used] >= 0))[0] if used.size \
         else used
-    S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
-                           shape=(used.size, n))
     if expr_k.size:
         used_fun, used_ccs = sc.used_values(used[expr_k])
-        P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
-                               shape=(used.size, expr_k.size))
-
-    if not use_sparse:  # small systems: dense NumPy throughout (no sparse overhead)
-        S_unit = S_unit.toarray()
+    if use_sparse:
+        S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
+                               shape=(used.size, n))
         if expr_k.size:
-            P_expr = P_expr.toarray()
+            P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
+                                   shape=(used.size, expr_k.size))
+    else:  # small systems: dense NumPy throughout (no sparse objects: 75 us a call)
+        S_unit = np.zeros((used.size, n))
+        S_unit[unit_k, sc.w_pos[used[unit_k]]] = 1.0
+        if expr_k.size:
+            P_expr = np.zeros((used.size, expr_k.size))
+            P_expr[expr_k, np.arange(expr_k.size)] = 1.0
 
     def values_and_jac(wv, jac: bool = True):
         """All named values at ``wv``, and the Jacobian of the used rows (CSR, or dense on

@@ -20,7 +20,8 @@ Rows, all from one run:
 Rows 1-3 and the simulate calls alone run in turn, REPEAT (5) rounds, the best round of each
 kept (a new process pool in every round); the Dask row is the best of 5 on one cluster. This
 machine's CPU is shared with other virtual machines (``top`` shows their steal time, up to
-50 %), so single runs of one row scatter widely.
+50 %), so single runs of one row scatter widely; the last lines give the overhead and the
+speedup round by round too, with their medians (the rows of one round run seconds apart).
 
 Printed: wall time, per-sample time, speedup against the hand loop, and whether the results
 are bit-for-bit those of the hand loop. The per-sample time of a single ``simulate`` call
@@ -160,6 +161,16 @@ def main() -> None:
           f"% CPU (serial). Per-sample cost of initialize + simulate (serial ensemble) against "
           f"the simulate calls alone: {100 * (rows[1][1] / t_sims - 1):+.1f} % wall, "
           f"{100 * (rows[1][2] / c_sims - 1):+.1f} % CPU.")
+    # the same ratios round by round (each round's rows run seconds apart, under the same
+    # steal time): the median is the robust figure on a shared machine
+    per_round = [(ser[1] / sim[1] - 1, hand[1] / pro[1]) for sim, hand, ser, pro in
+                 zip(runs["sim"], runs["hand"], runs["serial"], runs["processes"], strict=True)]
+    over = sorted(100 * o for o, _ in per_round)
+    speed = sorted(sp for _, sp in per_round)
+    print("round by round: initialize + simulate against simulate alone "
+          + ", ".join(f"{o:+.1f} %" for o in over) + f" (median {np.median(over):+.1f} %); "
+          "speedup of the processes " + ", ".join(f"{v:.2f}" for v in speed)
+          + f" (median {np.median(speed):.2f})")
     print(f"load-independent estimate of the speedup on {WORKERS} idle cores (processes): "
           f"hand CPU / max(worker CPU / {WORKERS}, submitting CPU) = "
           f"{c_hand / max(rows[2][2] / WORKERS, rows[2][4]):.2f}")

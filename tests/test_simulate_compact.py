@@ -152,21 +152,15 @@ def test_output_projection_is_exact_on_many_rows(pendulum3d):
 
 @pytest.mark.parametrize("n", [5, 500])  # few rows (short function) and many: both routes
 @pytest.mark.parametrize("symbolic", [True, False])
-def test_row_projection_is_the_exact_nearest_point(n, symbolic):
+def test_row_projection_is_the_exact_nearest_point(n, symbolic, circle_system):
     """Rows off the unit circle by up to 1e-6 (x = (1 + e) (cos a, sin a), z = x[0] from
     alg = z - x[0]) projected with unit weights: the nearest point of the circle is x / |x|
     exactly, and z follows; for the generated Gauss--Newton step and the batched NumPy one
     alike. (z is weighted 1e8 times less than x, not free: that leaves 1e-8 of the correction,
     1e-14 here.)"""
-    from daekit.reduced import ReducedDAE
     from daekit.simulate.projection import Projector
 
-    t = ca.SX.sym("t")
-    x = ca.SX.sym("x", 2)
-    z = ca.SX.sym("z")
-    r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), ca.vertcat(-x[1], x[0]), z - x[0],
-                   ca.dot(x, x) - 1, ["circle"], ["x[0]", "x[1]"], ["z"], [], [], np.zeros(0))
-    P = Projector(r)
+    P = Projector(circle_system)
     if not symbolic:
         P.SYMBOLIC_STEP_MAX_NH = 0
     rng = np.random.default_rng(1)

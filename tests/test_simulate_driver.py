@@ -155,16 +155,10 @@ def test_chain_of_500_links_projects_in_few_steps():
     assert np.max(np.abs(proj["q"] - plain["q"])) < 1e-2
 
 
-def test_projector_is_sparse_and_exact_on_a_circle():
-    from daekit.reduced import ReducedDAE
+def test_projector_is_sparse_and_exact_on_a_circle(circle_system):
     from daekit.simulate.projection import Projector
 
-    t = ca.SX.sym("t")
-    x = ca.SX.sym("x", 2)
-    z = ca.SX.sym("z")
-    r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), ca.vertcat(-x[1], x[0]), z - x[0],
-                   ca.dot(x, x) - 1, ["circle"], ["x[0]", "x[1]"], ["z"], [], [], np.zeros(0))
-    P = Projector(r)
+    P = Projector(circle_system)
     xp, zp, _ = P(0.0, np.array([0.6, 0.9]), np.array([0.0]), [], [])
     # the nearest point of the unit circle, z follows from alg
     assert np.allclose(xp, np.array([0.6, 0.9]) / np.hypot(0.6, 0.9), atol=1e-12)

@@ -1388,6 +1388,16 @@ def _place_rows(idx: np.ndarray, rows: np.ndarray, n_rows: int) -> sp.csr_matrix
     return (P @ sp.csr_matrix(rows)).tocsr()
 
 
+def _well_conditioned_lu(A: sp.csc_matrix):
+    """SuperLU factors of the square ``A``, or None when it is singular or ill conditioned
+    (:func:`_well_conditioned`)."""
+    try:
+        lu = sp.linalg.splu(A)
+    except RuntimeError:
+        return None
+    return lu if _well_conditioned(lu, A) else None
+
+
 def _well_conditioned(lu, A: sp.csc_matrix, limit: float = 1e10) -> bool:
     """1-norm condition estimate of the square ``A`` from its SuperLU factors."""
     nA = A.shape[0]
@@ -1454,11 +1464,8 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
     Ji, Jf = J[n_alg:n_cons], J[n_cons:]
     if nz:
         Az = J[:n_alg, nx:].tocsc()
-        try:
-            lu_a = sp.linalg.splu(Az)
-        except RuntimeError:
-            return None
-        if not _well_conditioned(lu_a, Az):
+        lu_a = _well_conditioned_lu(Az)
+        if lu_a is None:
             return None
         Ax = J[:n_alg, :nx].tocsc()
 
@@ -1502,12 +1509,7 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
             D = _greedy_matching(B)
             if D is not None:
                 CD = C[:, D].tocsc()
-                try:
-                    lu_c = sp.linalg.splu(CD)
-                except RuntimeError:
-                    lu_c = None
-                if lu_c is not None and not _well_conditioned(lu_c, CD):
-                    lu_c = None
+                lu_c = _well_conditioned_lu(CD)
         if lu_c is None:
             try:
                 _, D = sp.csgraph.min_weight_full_bipartite_matching(B)
@@ -1515,11 +1517,8 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
                 return None
             D = np.asarray(D)
             CD = C[:, D].tocsc()
-            try:
-                lu_c = sp.linalg.splu(CD)
-            except RuntimeError:
-                return None
-            if not _well_conditioned(lu_c, CD):
+            lu_c = _well_conditioned_lu(CD)
+            if lu_c is None:
                 return None
     else:
         D = np.zeros(0, dtype=int)

@@ -439,8 +439,6 @@ def _load_results(blob, system) -> list:
     with ``system`` (this process's own) when first read."""
     import io
 
-    if not isinstance(blob, (bytes, bytearray)):
-        return blob
     return _ReceiveUnpickler(io.BytesIO(blob), system).load()
 
 

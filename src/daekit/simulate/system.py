@@ -46,7 +46,8 @@ from .trajectory import LazyColumns, Trajectory
 from .vectorized import evaluate_columns, evaluate_rows, fast_call
 
 __all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
-           "make_trajectory", "reraise_input_error", "to_scipy", "stats_of"]
+           "make_trajectory", "reraise_input_error", "to_scipy", "stats_of", "evaluator_of",
+           "StateColumns"]
 
 _IDA_REASONS = {
     "IDA_CONV_FAIL": "the Newton iteration failed to converge repeatedly (the algebraic "
@@ -249,11 +250,16 @@ def _pad(A, m: int) -> np.ndarray:
     return np.concatenate([A, reps], axis=0)
 
 
+def evaluator_of(r) -> Evaluator:
+    """The :class:`Evaluator` of ``r``, made once per system (it depends on ``r`` alone)."""
+    return r.derived("simulate.evaluator", Evaluator)
+
+
 def make_trajectory(r, tg, X, Z, U, pv, stats, evaluator: Evaluator | None = None) -> Trajectory:
     """The :class:`Trajectory` of ``r`` from state arrays on the grid ``tg``: the values that
     are elements of ``x``, ``z``, ``u`` at once, the other variables and the invariants when
     first read (:class:`~daekit.simulate.trajectory.LazyColumns`, one mapped CasADi call)."""
-    ev = evaluator or Evaluator(r)
+    ev = evaluator or evaluator_of(r)
     tg = np.asarray(tg, dtype=float).ravel()
     n = tg.size
     X = np.array(X, dtype=float, copy=True).reshape(n, r.nx)
@@ -275,7 +281,7 @@ class StateColumns:
 
     def __init__(self, r, tg, X, Z, U, pv, ev: Evaluator | None = None) -> None:
         self.r, self.tg, self.X, self.Z, self.U, self.pv = r, tg, X, Z, U, pv
-        self.ev = ev if ev is not None else r.derived("simulate.evaluator", Evaluator)
+        self.ev = ev if ev is not None else evaluator_of(r)
 
     def ready(self) -> dict:
         n = self.tg.size
@@ -383,16 +389,13 @@ class System:
         self.use_mx = sig.has_callables
         self.ufun = sig.mx_function() if self.use_mx else None
         self._grid: dict = {}
-        self._evaluator: Evaluator | None = None
         self._alg_fun = None
         self._oracle = None
 
     # ------------------------------------------------------------------ functions
     @property
     def evaluator(self) -> Evaluator:
-        if self._evaluator is None:
-            self._evaluator = Evaluator(self.r)
-        return self._evaluator
+        return evaluator_of(self.r)
 
     @property
     def alg_fun(self) -> ca.Function:

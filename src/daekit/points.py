@@ -33,6 +33,7 @@ Example
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as ca
@@ -68,7 +69,7 @@ def check_point(model, point, error: type[Exception] = ModelError) -> dict[str, 
     """
     if point is None:
         return {}
-    if not isinstance(point, dict):
+    if not isinstance(point, Mapping):
         raise error(
             f"model {model.name!r}: point must be a dict of values by name, e.g. "
             f"{{'p': [1, 0], 't': 0.0}}, got {type(point).__name__}"

@@ -596,10 +596,11 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
 
         def rank_at(q) -> None:
             nonlocal r_all, r_rest
-            # entries vanishing on the solutions: compared with a point near q in its units
+            # entries vanishing on the solutions (daekit.numerics.VANISH, one rule for
+            # analysis and reduction): compared with a point near q in its units
             ref = (at.dense(q.perturbed()) if q.status is not None and q.status.consistent
                    else at_random)
-            full = _vanishing_removed_dense(at.dense(q), ref)
+            full = vanishing_removed(at.dense(q), ref)
             _require_finite_dense(
                 full, lambda r: derivative_name(eq_names[rows[r % len(rows)]], r // len(rows)))
             jac = full[:, :nc]
@@ -768,9 +769,6 @@ class Analysis:
         }
 
 
-# entries vanishing on the solutions: daekit.numerics.VANISH (one rule for analysis and reduction)
-_vanishing_removed = vanishing_removed
-_vanishing_removed_dense = vanishing_removed
 
 
 class _JacobianAt:
@@ -861,12 +859,6 @@ def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
                            source=model.system_jacobian(c, d))
 
     return model.memo(("system_jacobian_at", c.tobytes(), d.tobytes()), make)
-
-
-def _sparse_jacobian(model: Model, rows, cols, orders, pt: _Point) -> sp.csr_matrix:
-    """Numeric sparse matrix of the entries ``dF_rows[k] / d x_cols[k]^(orders[k])``; raises
-    :class:`_NonFinite` naming the equations with NaN or inf entries."""
-    return _JacobianAt(model, rows, cols, orders)(pt)
 
 
 def system_jacobian_singular(model: Model, c: np.ndarray, d: np.ndarray, seed: int = 0
@@ -1016,8 +1008,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         #    (the rank there is the generic one), so structural analysis fails for sure
         jac = at(pt)
         blocks_idx = block_triangular(n, pat_rows, pat_cols, sig.transversal)
-        jd = jac
-        checks = [_rank_check(jd, br, bc) for br, bc in blocks_idx]
+        checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
         if pt.point is None and pt.attempt == 0:  # system_jacobian_singular's own point
             key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
@@ -1044,7 +1035,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                     pt, status = pt2, st2
                     break
         if status is not None and status.consistent:
-            jac_c = _vanishing_removed(at(pt), at(pt.perturbed()))
+            jac_c = vanishing_removed(at(pt), at(pt.perturbed()))
             new = [k for k, (ch, (br, bc)) in enumerate(zip(checks, blocks_idx, strict=True))
                    if ch.rank == ch.size and _rank_check(jac_c, br, bc).rank < ch.size]
             for k in new:
@@ -1058,7 +1049,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
                 pt2 = pt.sibling(extra)
                 if not consistent_point(pt2, expansion).consistent:
                     continue
-                jac2 = _vanishing_removed(at(pt2), at(pt2.perturbed()))
+                jac2 = vanishing_removed(at(pt2), at(pt2.perturbed()))
                 for k in new:
                     br, bc = blocks_idx[k]
                     checks[k] = max(checks[k], _rank_check(jac2, br, bc), key=lambda c_: c_.rank)

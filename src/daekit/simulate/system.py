@@ -33,7 +33,6 @@ from __future__ import annotations
 import difflib
 import math
 import re
-import threading
 from collections.abc import Mapping
 
 import casadi as ca
@@ -42,6 +41,7 @@ import scipy.sparse as sp
 
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal
+from ..numerics import FastFunction
 from .trajectory import LazyColumns, Trajectory
 from .vectorized import evaluate_columns, evaluate_rows, fast_call
 
@@ -390,6 +390,7 @@ class System:
         self.ufun = sig.mx_function() if self.use_mx else None
         self._grid: dict = {}
         self._alg_fun = None
+        self._alg_res: FastFunction | None = None
         self._oracle = None
 
     # ------------------------------------------------------------------ functions
@@ -416,23 +417,13 @@ class System:
         z = np.asarray(z, dtype=float).ravel().copy()
         if self.nz == 0:
             return z
-        me = threading.get_ident()
-        if getattr(self, "_alg_res", None) is None or self._alg_res[5] != me:
+        if self._alg_res is None:
             r = self.r
             alg = ca.vec(r.alg) if r.alg.numel() else ca.SX(0, 1)
-            F = ca.Function("alg_res", [r.t, r.x, r.z, r.u, r.p], [alg])
-            # one buffer bound once to these arrays: a residual check costs microseconds
-            ins = [np.zeros(F.nnz_in(i)) for i in range(5)]
-            out = np.zeros(F.nnz_out(0))
-            buf, ev = F.buffer()
-            for i, a in enumerate(ins):
-                buf.set_arg(i, memoryview(a))
-            buf.set_res(0, memoryview(out))
-            self._alg_res = (F, buf, ev, ins, out, me)  # (a buffer per thread)
-        _, _, ev, ins, out, _ = self._alg_res
-        for a, v in zip(ins, (t, x, z, u, p), strict=True):
-            a[:] = v if np.ndim(v) == 1 else np.ravel(v)
-        ev()
+            # raw buffers, one per thread: a residual check costs microseconds
+            self._alg_res = FastFunction(ca.Function("alg_res", [r.t, r.x, r.z, r.u, r.p],
+                                                     [alg]))
+        out = self._alg_res(*(np.ravel(v) for v in (t, x, z, u, p)))[0]
         gmax = float(np.abs(out).max())  # (NaN propagates: the test below fails)
         if gmax < 1e-14 * (1 + float(np.abs(z).max())):
             return z  # already consistent (the common case: one cheap evaluation)

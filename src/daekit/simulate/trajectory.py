@@ -32,6 +32,7 @@ __all__ = ["Trajectory", "LazyColumns", "NameNotFoundError", "expand_name", "loa
            "compact_pickling"]
 
 _COMPACT = threading.local()
+_FILL_LOCK = threading.RLock()
 
 
 @contextlib.contextmanager
@@ -87,12 +88,13 @@ class LazyColumns(MutableMapping):
         self._recipe = recipe
 
     def _fill(self) -> None:
-        fn, self._compute = self._compute, None
-        if fn is not None:
-            for k, v in fn().items():
-                if k in self._pending:
-                    self._d[k] = v
-        self._pending.clear()
+        with _FILL_LOCK:  # two threads reading a pending column: one computes, both read
+            fn, self._compute = self._compute, None
+            if fn is not None:
+                for k, v in fn().items():
+                    if k in self._pending:
+                        self._d[k] = v
+                self._pending.clear()
 
     def __getitem__(self, key: str) -> np.ndarray:
         try:

@@ -627,12 +627,14 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             rank_at(other)
         return r_all, r_rest, fulls
 
+    tested: dict[int, tuple] = {}  # the top level's test, when made first (not twice)
     if top_first and soft and max_index > 0:
         for k in range(1, max_index + 1):
             if too_long(k):
                 return None
             grow(k)
-        r_all, r_rest, _ = test(max_index)
+        tested[max_index] = test(max_index)
+        r_all, r_rest, _ = tested[max_index]
         if r_all - r_rest != n:
             return None  # not determined at the top level: at no level below either
     ranks: list[tuple[int, int, int]] = []
@@ -643,7 +645,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             grow(k)
         elif k == 0 and too_long(0):
             return None
-        r_all, r_rest, fulls = test(k)
+        r_all, r_rest, fulls = tested.pop(k) if k in tested else test(k)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
             r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0

@@ -683,7 +683,15 @@ def remember_consistent(model, pt: TestPoint) -> None:
     """Keep the values of the consistent point ``pt`` of ``model`` (the equations and their
     derivatives up to Pryce's offsets hold there: :func:`daekit.analyze`'s point) on the
     model until it changes, for :func:`reduced_consistent_point` of its reduced systems (a
-    start that is consistent already: one check instead of a Gauss--Newton solve)."""
+    start that is consistent already: one check instead of a Gauss--Newton solve).
+
+    >>> import daekit as dk
+    >>> m = dk.examples.pendulum_planar()
+    >>> _ = dk.analyze(m)  # keeps its consistent point here
+    >>> t, values, params = m.memo("results", dict)["consistent_point"]
+    >>> params.tolist(), len(values) > 0  # the parameter values it holds for, the values
+    ([9.81, 1.0], True)
+    """
     if pt.status is None or not pt.status.consistent:
         return
     model.memo("results", dict)["consistent_point"] = (

@@ -16,7 +16,7 @@ from ..wording import count, derivative_name, listing
 __all__ = ["explain"]
 
 
-def count_dof(k: int) -> str:
+def _count_dof(k: int) -> str:
     return count(k, "degree of freedom")
 
 
@@ -202,15 +202,15 @@ def _explain_failure(a: Any) -> list[str]:
         text = (f"Differential index {a.index}. Structural analysis FAILS in part of the model: "
                 f"{where}. The {k} of {n} equations coupled to {'them' if plural else 'it'} "
                 f"(sharing unknowns) were analyzed NUMERICALLY from the derivative array: index "
-                f"{num.index}, {count_dof(num.dof)}; the other {n - k} are structurally sound "
-                f"(index {a.structural_part[0]}, {count_dof(a.structural_part[1])}), and the "
+                f"{num.index}, {_count_dof(num.dof)}; the other {n - k} are structurally sound "
+                f"(index {a.structural_part[0]}, {_count_dof(a.structural_part[1])}), and the "
                 "model's index is the larger, its DOF the sum.")
     idx_ok = a.structural_index == a.index
     dof_ok = a.structural_dof - len(a.declared_invariants) == a.dof
     claims = (
         f"index {a.structural_index}"
         + (" (right)" if idx_ok else f" (wrong: the true index is {a.index})")
-        + f" and {count_dof(a.structural_dof)}"
+        + f" and {_count_dof(a.structural_dof)}"
         + (" (right)" if dof_ok else f" (wrong: the true number is {a.dof})")
     )
     text += f" Structural analysis of the whole model claims {claims}"

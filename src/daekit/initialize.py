@@ -148,18 +148,6 @@ class InitialValues:
     determined: list[str] = field(default_factory=list)
     _deferred: object = field(default=None, repr=False, compare=False)
 
-    def __getattribute__(self, name: str):
-        if name in _DEFERRED:
-            d = object.__getattribute__(self, "__dict__")
-            if d.get("_deferred") is not None:
-                object.__getattribute__(self, "_resolve")()
-        return object.__getattribute__(self, name)
-
-    def __setattr__(self, name: str, value) -> None:
-        if name in _DEFERRED and self.__dict__.get("_deferred") is not None:
-            self._resolve()
-        object.__setattr__(self, name, value)
-
     def _resolve(self) -> None:
         """Run the deferred analysis (free, redundant, determined values) once."""
         d = self.__dict__
@@ -191,8 +179,34 @@ class InitialValues:
         )
 
 
+class _DeferredField:
+    """A field of :class:`InitialValues` filled by the deferred analysis: reading it (or
+    writing it, so that the analysis does not overwrite the value later) runs the analysis
+    first if it is still pending. A data descriptor on six fields only: reading any other
+    attribute runs no Python."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        d = obj.__dict__
+        if d.get("_deferred") is not None:
+            obj._resolve()
+        return d[self.name]
+
+    def __set__(self, obj, value) -> None:
+        if obj.__dict__.get("_deferred") is not None:
+            obj._resolve()
+        obj.__dict__[self.name] = value
+
+
 #: InitialValues fields filled by the deferred analysis.
 _DEFERRED = frozenset({"free", "dof", "dof_names", "redundant", "determined", "notes"})
+for _name in _DEFERRED:  # after @dataclass: its __init__ then stores through them
+    setattr(InitialValues, _name, _DeferredField(_name))
+del _name
 
 
 def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = None
@@ -301,7 +315,6 @@ class _SystemCache:
         self.settle = {}
         self.hess: dict = {}
         self.zdep = None
-        self.default_inputs = None  # the InputSignal of inputs=None
         self.names_of: dict = {}  # a fixed/guessed key -> its elements and rows
 
     def describe(self, rows: np.ndarray) -> None:
@@ -435,7 +448,7 @@ def initialize(
     >>> init.fixed, len(init.free)        # one more value (e.g. p[1]) could be fixed
     (['v[0]'], 1)
     """
-    from .inputs import InputSignal, resolve_params
+    from .inputs import resolve_params, signal_for
     from .reduced import ReducedDAE
 
     notes: list[str] = []
@@ -471,12 +484,7 @@ def initialize(
     n = nx + nz
     pv = resolve_params(r, params)
     sc = _system_cache(r)
-    if inputs:
-        sig = InputSignal(r, inputs)
-    else:  # the default inputs (zero) depend on the system only: made once
-        if sc.default_inputs is None:
-            sc.default_inputs = InputSignal(r, None)
-        sig = sc.default_inputs
+    sig = signal_for(r, inputs)  # the default inputs (zero): made once per system
     u0 = sig.value(t0)
 
     args = (t0, u0, pv)

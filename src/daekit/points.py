@@ -663,10 +663,27 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
             return -np.linalg.lstsq(A, h, rcond=1e-12)[0]
         except np.linalg.LinAlgError:
             return None
-    # the augmented (quasi-definite) system [[I, J^T], [J, -mu I]] [d; y] = [0; -h]: its
-    # sparse LU stays linear in the size for chains and meshes (J J^T may fill in)
     mu = 1e-12
-    K = _kkt(sp.csc_matrix(J), mu)
+    J = sp.csc_matrix(J)
+    # the normal equations (J J^T + mu I) y = h, d = -J^T y, where J J^T stays about as sparse
+    # as J (chains, meshes: a symmetric positive definite matrix a fifth of the KKT system's
+    # size, factorized in a quarter of its time, 200-link chain); else (a column shared by
+    # many rows fills J J^T) the augmented system below
+    JJ = (J @ J.T).tocsc()
+    if JJ.nnz <= 2 * J.nnz + m:
+        JJ = JJ + mu * sp.identity(m, format="csc")
+        try:
+            lu = sp.linalg.splu(JJ, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
+                                options={"SymmetricMode": True})
+        except RuntimeError:
+            lu = None
+        if lu is not None:
+            y = lu.solve(h)
+            y = y + lu.solve(h - JJ @ y)  # one step of iterative refinement
+            return -(J.T @ y)
+    # the augmented (quasi-definite) system [[I, J^T], [J, -mu I]] [d; y] = [0; -h]: its
+    # sparse LU stays linear in the size for chains and meshes
+    K = _kkt(J, mu)
     try:
         # threshold partial pivoting (0.1, as MA48 and UMFPACK): less fill than strict
         # partial pivoting; the refinement step below recovers the accuracy

@@ -883,7 +883,19 @@ def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
     """Pryce's system Jacobian for the offsets ``(c, d)`` as a :class:`_JacobianAt` on the
     pattern of the Sigma matrix's tight entries (``sigma_ij = d_j - c_i``): its values from
     :meth:`daekit.Model.system_jacobian`; made once per model and offsets (analysis and
-    reduction evaluate it at their points)."""
+    reduction evaluate it at their points).
+
+    The planar pendulum ``x'' = T x``, ``y'' = T y - g``, ``x^2 + y^2 = 1`` (offsets ``c =
+    (0, 0, 2)``): the rows ``d/dx''``, ``d/dy''``, ``d/dT`` of the equations and the rod
+    differentiated twice, at ``x = 0.6``, ``y = -0.8``:
+
+    >>> import daekit as dk
+    >>> from daekit.points import TestPoint
+    >>> m = dk.examples.pendulum_planar(); sig = m.sigma()
+    >>> jac = system_jacobian_at(m, sig.c, sig.d)
+    >>> jac.dense(TestPoint(m, {"x": 0.6, "y": -0.8})).round(2).tolist()
+    [[1.0, 0.0, -0.6], [0.0, 1.0, 0.8], [1.2, -1.6, 0.0]]
+    """
     c = np.asarray(c, dtype=np.int64)
     d = np.asarray(d, dtype=np.int64)
 

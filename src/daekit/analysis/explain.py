@@ -49,7 +49,19 @@ def _der(name: str, k: int) -> str:
 
 
 def explain(a: Any) -> str:
-    """The account of the analysis ``a`` (an :class:`~daekit.analysis.Analysis`)."""
+    """The account of the analysis ``a`` (an :class:`~daekit.analysis.Analysis`):
+    :meth:`Analysis.explain <daekit.analysis.Analysis.explain>` calls it.
+
+    >>> import daekit as dk
+    >>> text = explain(dk.analyze(dk.examples.pendulum_planar()))
+    >>> print(text.splitlines()[2])  # doctest: +NORMALIZE_WHITESPACE +ELLIPSIS
+    Differential index 3, from structural analysis (Pryce's Sigma-method); the system Jacobian
+    is nonsingular at the test point (reciprocal condition ...), so the structural DOF is
+    the true one, and the derivative array at the test points confirms the index (Pryce's
+    index is only an upper bound of the differential one).
+    >>> "Degrees of freedom: 2 initial values can be chosen freely" in text
+    True
+    """
     n = len(a.equation_offsets)
     n_alg = sum(1 for v in a.highest_order.values() if v == 0)
     lines = [

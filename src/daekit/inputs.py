@@ -19,7 +19,7 @@ from .errors import DaekitError, ModelError
 from .model import NameNotFoundError, element_name, expand_name, fit_elements, parse_name
 from .wording import count
 
-__all__ = ["InputSignal", "InputError", "resolve_params"]
+__all__ = ["InputSignal", "InputError", "resolve_params", "signal_for"]
 
 
 class InputError(DaekitError):
@@ -345,3 +345,27 @@ def override_params(p_values, p_names: list[str], params: Mapping | None,
         for e, v in zip(elems, arr, strict=False):
             pv[index[e]] = v
     return pv
+
+
+def signal_for(r, inputs: Mapping | None) -> InputSignal:
+    """The :class:`~daekit.inputs.InputSignal` of ``r`` for ``inputs``; without inputs (all
+    controls zero, the common case) built once and kept on ``r`` (simulate and initialize
+    share it).
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
+    >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -x, ca.SX(0, 1),
+    ...     ca.SX(0, 1), [], ["x"], [], [], [], np.zeros(0), {"x": x})
+    >>> signal_for(r, None) is signal_for(r, {})
+    True
+    """
+    if inputs:
+        return InputSignal(r, inputs)
+
+    def build(r) -> InputSignal:
+        sig = InputSignal(r, None)
+        sig.default = True  # no inputs given: the key of system_for needs no serialization
+        return sig
+
+    return r.derived("inputs.default_signal", build)

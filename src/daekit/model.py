@@ -734,7 +734,7 @@ class Model:
                     row = elems[key] = self._order_elements(var, o)
                 out.append(row[i])
             return ca.vertcat(*out)
-        var_of, elem_of = self._unknown_arrays()
+        var_of, elem_of = self.unknown_arrays()
         variables = self.unknown_variables
         parts, base, pos = [], 0, np.empty(js.size, dtype=np.int64)
         for o in np.unique(orders):
@@ -756,10 +756,6 @@ class Model:
         >>> [a.tolist() for a in m.unknown_arrays()]
         [[0, 0, 1], [0, 1, 0]]
         """
-        return self._unknown_arrays()
-
-    def _unknown_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per scalar unknown: index of its variable in ``unknown_variables`` and its element."""
         if "unknown_arrays" not in self._cache:
             sizes = np.array([v.size for v in self.unknown_variables], dtype=np.int64)
             var_of = np.repeat(np.arange(sizes.size), sizes)
@@ -834,7 +830,7 @@ class Model:
             return self._cache["inc"]
         F = self.residual
         unknowns = self.unknowns
-        var_of, _ = self._unknown_arrays()
+        var_of, _ = self.unknown_arrays()
         rows_all, cols_all, vals_all = [], [], []
         max_ord = max((self.max_order(v) for v in self.unknown_variables), default=0)
         for order in range(max_ord + 1):
@@ -879,7 +875,7 @@ class Model:
         """
         cache = self._cache.setdefault("residual_jacobian", {})
         if order not in cache:
-            var_of, _ = self._unknown_arrays()
+            var_of, _ = self.unknown_arrays()
             has = np.array([order == 0 or order in v.ders for v in self.unknown_variables],
                            dtype=bool)
             cols = np.nonzero(has[var_of])[0] if var_of.size else np.zeros(0, np.int64)

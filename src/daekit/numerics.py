@@ -288,25 +288,57 @@ def _curtis_reid_log(m, n, rows, cols, vals) -> tuple[np.ndarray, np.ndarray]:
     if k == 0:
         return np.zeros(m), np.zeros(n)
     if m + n <= DENSE_CR:
-        K = np.zeros((m + n, m + n))
-        K[rows, m + cols] = 1.0
-        K[m + cols, rows] = 1.0
-        idx = np.arange(m + n)
-        K[idx, idx] = np.concatenate([np.bincount(rows, minlength=m),
-                                      np.bincount(cols, minlength=n)]) + 1e-10
         b = -np.concatenate([np.bincount(rows, vals, minlength=m),
                              np.bincount(cols, vals, minlength=n)])
-        # LAPACK's gesv (np.linalg.solve's routine) without NumPy's per-call checks (imported
-        # here: scipy.linalg loads on first use, not with daekit)
-        from scipy.linalg.lapack import dgesv
-
-        _, _, sol, info = dgesv(K, b)
-        if info != 0:  # pragma: no cover - the ridge keeps K regular
+        lu = _curtis_reid_dense(m, n, rows, cols)
+        if lu is None:  # pragma: no cover - the ridge keeps K regular
+            K = _curtis_reid_matrix(m, n, rows, cols)
             sol = np.linalg.lstsq(K, b, rcond=None)[0]
+        else:
+            from scipy.linalg.lapack import dgetrs
+
+            sol = dgetrs(lu[0], lu[1], b)[0]
         return sol[:m], sol[m:]
     b = -np.r_[np.bincount(rows, vals, minlength=m), np.bincount(cols, vals, minlength=n)]
     sol = _curtis_reid_factor(m, n, rows, cols).solve(b)
     return sol[:m], sol[m:]
+
+
+def _curtis_reid_matrix(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Curtis--Reid's normal equations (dense, with the ridge) for the nonzeros ``(rows,
+    cols)`` of an ``m x n`` matrix."""
+    K = np.zeros((m + n, m + n))
+    K[rows, m + cols] = 1.0
+    K[m + cols, rows] = 1.0
+    idx = np.arange(m + n)
+    K[idx, idx] = np.concatenate([np.bincount(rows, minlength=m),
+                                  np.bincount(cols, minlength=n)]) + 1e-10
+    return K
+
+
+#: Dense Curtis--Reid factorizations kept per thread (by pattern): Gauss--Newton on a small
+#: system equilibrates Jacobians of one or two patterns at every iterate.
+CR_DENSE_PATTERNS = 32
+
+
+def _curtis_reid_dense(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
+    """LAPACK's LU (``getrf``) of :func:`_curtis_reid_matrix`, kept for the last
+    ``CR_DENSE_PATTERNS`` patterns of this thread (the matrix depends on the pattern only);
+    solved by ``getrs`` this is ``gesv``, bit for bit. None if singular (never: the ridge).
+    (scipy.linalg is imported here: it loads on first use, not with daekit.)"""
+    key = (m, n, rows.tobytes(), cols.tobytes())
+    cache = _CR.__dict__.setdefault("dense", {})
+    hit = cache.get(key)
+    if hit is None:
+        from scipy.linalg.lapack import dgetrf
+
+        lu, piv, info = dgetrf(_curtis_reid_matrix(m, n, rows, cols))
+        if info != 0:  # pragma: no cover - the ridge keeps K regular
+            return None
+        if len(cache) >= CR_DENSE_PATTERNS:
+            cache.pop(next(iter(cache)))
+        hit = cache[key] = (lu, piv)
+    return hit
 
 
 _CR = threading.local()  # factorizations of Curtis--Reid's normal equations, per pattern

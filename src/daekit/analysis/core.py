@@ -926,37 +926,57 @@ def system_jacobian_singular(model: Model, c: np.ndarray, d: np.ndarray, seed: i
     ['a', 'b']
     """
     c, d = np.asarray(c, dtype=np.int64), np.asarray(d, dtype=np.int64)
-    key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
-           model.parameter_values.tobytes())
+    key = _verdict_key(model, c, d, seed)
     memos = model.memo("results", dict)  # kept until the model changes
     if key in memos:  # analyze has decided it at this point (or an earlier call)
         out = memos[key]
         return list(out) if out is not None else None
     pt = _Point(model, None, seed)
-    try:
-        jac = system_jacobian_at(model, c, d)(pt)
+    jac_at = system_jacobian_at(model, c, d)
+    n = model.n_equations
+    try:  # dense for small models, as analyze evaluates it
+        jac = jac_at.dense(pt) if n <= EASY_DENSE_LIMIT else jac_at(pt)
     except _NonFinite:
         return None
-    bad = _singular_system_blocks(model, jac)
+    try:
+        sig = model.sigma()
+    except NoTransversal:
+        sig = None
+    if sig is not None and np.array_equal(sig.c, c) and np.array_equal(sig.d, d):
+        matching = sig.transversal  # on the tight entries: a perfect matching of jac's
+    else:
+        dm = dulmage_mendelsohn(n, n, *jac_at.pattern)
+        if not dm.is_square_nonsingular:
+            return None  # structurally singular: the structural analysis says so itself
+        matching = dm.row_match
+    bad = _singular_verdict(model, _block_checks(model, jac, jac_at.pattern, matching)[1])
     memos[key] = bad
     return list(bad) if bad is not None else None
 
 
-def _singular_system_blocks(model: Model, jac: sp.csr_matrix) -> list[str] | None:
-    """The equations (in model order) of the singular diagonal blocks of the system
-    Jacobian's value ``jac``, or None (see :func:`system_jacobian_singular`)."""
-    coo = jac.tocoo()
-    n = model.n_equations
-    m_ = dulmage_mendelsohn(n, n, coo.row, coo.col)
-    if not m_.is_square_nonsingular:
-        return None  # structurally singular: the structural analysis says so itself
+def _verdict_key(model: Model, c: np.ndarray, d: np.ndarray, seed: int) -> tuple:
+    """Key of :func:`system_jacobian_singular`'s verdict in the model's results memo (kept
+    until the model changes; the parameter values are part of it)."""
+    return ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
+            model.parameter_values.tobytes())
+
+
+def _block_checks(model: Model, jac, pattern, matching) -> tuple[list, list[_RankCheck]]:
+    """The diagonal blocks ``(rows, cols)`` of the block triangular form of the system
+    Jacobian's value ``jac`` (dense or sparse) on its ``pattern`` (the tight entries' rows
+    and columns; ``matching`` a perfect matching on them) and the rank check of each: the one
+    computation of the system Jacobian's singular blocks, for :func:`analyze` and
+    :func:`system_jacobian_singular` (the blocks of a square matrix's block triangular form
+    do not depend on the matching)."""
+    blocks = block_triangular(model.n_equations, *pattern, matching)
+    return blocks, [_rank_check(jac, br, bc) for br, bc in blocks]
+
+
+def _singular_verdict(model: Model, checks) -> list[str] | None:
+    """The equations (in model order) of the singular blocks among ``checks``, or None."""
     names = model.equation_names
-    bad: list[int] = []
-    for br, bc in block_triangular(n, coo.row, coo.col, m_.row_match):
-        ch = _rank_check(jac, br, bc)
-        if ch.rank < ch.size:
-            bad += ch.rows
-    return [names[i] for i in sorted(bad)] or None
+    bad = sorted(int(i) for ch in checks if ch.rank < ch.size for i in ch.rows)
+    return [names[i] for i in bad] or None
 
 
 #: Models whose expansion (every equation with its derivatives up to Pryce's offset) has more
@@ -1048,20 +1068,16 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
 
     small = n <= EASY_DENSE_LIMIT  # small: dense matrices throughout (no SciPy objects)
     at = jac_at.dense if small else jac_at
-    pat_rows, pat_cols = jac_at.pattern
 
     def work(pt: _Point):
         # 1. at the random point: a block singular there is singular on the solutions too
         #    (the rank there is the generic one), so structural analysis fails for sure
         jac = at(pt)
-        blocks_idx = block_triangular(n, pat_rows, pat_cols, sig.transversal)
-        checks = [_rank_check(jac, br, bc) for br, bc in blocks_idx]
+        blocks_idx, checks = _block_checks(model, jac, jac_at.pattern, sig.transversal)
         sing0 = [ch.rows for ch in checks if ch.rank < ch.size]
         if pt.point is None and pt.attempt == 0:  # system_jacobian_singular's own point
-            key = ("system_jacobian_singular", seed, c.tobytes(), d.tobytes(),
-                   model.parameter_values.tobytes())
-            model.memo("results", dict)[key] = (
-                [eq_names[i] for i in sorted(int(i) for b in sing0 for i in b)] or None)
+            model.memo("results", dict)[_verdict_key(model, c, d, seed)] = _singular_verdict(
+                model, checks)
         if sing0:  # too big for the derivative array: say so before any further work
             _require_small(model, eq_lab, np.unique(eq_lab[np.concatenate(sing0)]), "analyze",
                            [eq_names[i] for b in sing0 for i in b])

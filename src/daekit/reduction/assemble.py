@@ -115,15 +115,7 @@ def pair_names(ex: Expansion, pairs) -> list[str]:
     if not pairs:
         return []
     jk = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-    var_of, elem_of = ex.model.unknown_arrays() if hasattr(ex.model, "unknown_arrays") \
-        else (None, None)
-    unknowns = ex.unknowns
-    if var_of is None or var_of.size != len(unknowns):
-        out = []
-        for j, k in jk.tolist():
-            var, i = unknowns[j]
-            out.append(element_names(var, k)[i])
-        return out
+    var_of, elem_of = ex.model.unknown_arrays()  # ex.unknowns are the model's, in order
     variables = ex.model.unknown_variables
     # every name of each (variable, order) met, once; then one gather
     key = var_of[jk[:, 0]] * (int(jk[:, 1].max()) + 1) + jk[:, 1]

@@ -40,7 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._cio import c_output, failure_time
-from ..inputs import InputError, InputSignal
+from ..inputs import InputError, InputSignal, signal_for
 from ..numerics import FastFunction
 from .trajectory import LazyColumns, Trajectory
 from .vectorized import evaluate_columns, evaluate_rows, fast_call
@@ -310,28 +310,6 @@ def reraise_input_error(system: System) -> None:
 def _fingerprint(r) -> tuple:
     """Identity of a ReducedDAE's equations (a copy with replaced equations differs)."""
     return (id(r.ode), id(r.alg), id(r.invariants), id(r.variables), id(r.x), id(r.z))
-
-
-def signal_for(r, inputs: Mapping | None) -> InputSignal:
-    """The :class:`~daekit.inputs.InputSignal` of ``r`` for ``inputs``; without inputs (all
-    controls zero, the common case) built once and kept on ``r``.
-
-    >>> import casadi as ca, numpy as np
-    >>> from daekit.reduced import ReducedDAE
-    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x")
-    >>> r = ReducedDAE(t, x, ca.SX(0, 1), ca.SX(0, 1), ca.SX(0, 1), -x, ca.SX(0, 1),
-    ...     ca.SX(0, 1), [], ["x"], [], [], [], np.zeros(0), {"x": x})
-    >>> signal_for(r, None) is signal_for(r, {})
-    True
-    """
-    if inputs:
-        return InputSignal(r, inputs)
-    def build(r) -> InputSignal:
-        sig = InputSignal(r, None)
-        sig.default = True  # no inputs given: the key of system_for needs no serialization
-        return sig
-
-    return r.derived("simulate.default_signal", build)
 
 
 def system_for(r, sig: InputSignal, rtol: float, atol: float, options: Mapping) -> System:

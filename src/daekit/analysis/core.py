@@ -795,6 +795,8 @@ class Analysis:
             "model": self.model_name,
             "structural_index": self.structural_index,
             "index": self.index,
+            # True where ``index`` is only Pryce's upper bound (see ``index_unconfirmed``)
+            "index_is_upper_bound": bool(self.index_unconfirmed),
             "dof": self.dof,
             "structurally_ok": self.structurally_ok,
             "equation_offsets": self.equation_offsets,

@@ -244,15 +244,20 @@ class PointFunction:
 
 @dataclass
 class PointStatus:
-    """How a test point was obtained: ``consistent`` (the equations hold to ``residual``,
-    relative), ``iterations`` of Gauss--Newton, ``given`` (the user's point was already
-    consistent), ``worst`` (the equation rows with the largest residual when not consistent)."""
+    """How a test point was obtained: ``consistent``; ``residual``, the largest residual of an
+    equation row relative to the size of its terms ``sum_j |J_ij w_j|``; ``iterations`` of
+    Gauss--Newton; ``given`` (the user's point was already consistent); ``worst`` (the
+    equation rows with the largest residual when not consistent); ``distance``, where the
+    point was accepted by the distance its converging iteration predicts (a multiple root,
+    rounding in rows whose terms cancel; see :func:`gauss_newton`), that distance relative
+    to the values, else None."""
 
     consistent: bool
     residual: float
     iterations: int = 0
     given: bool = False
     worst: list[int] | None = None
+    distance: float | None = None
 
 
 def _fixed_kinds(model) -> set[int]:
@@ -553,6 +558,10 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
     def finite(hv):
         return bool(np.isfinite(hv).all())
 
+    def relative(wv, Jv, rv) -> float:
+        """The largest row residual relative to the row's terms (``level`` over ``tol``)."""
+        return float(np.max(rv / (level(wv, Jv) / tol))) if rv.size else 0.0
+
     r = merit(h)
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
     full_steps, last_size = 0, 0.0  # full steps taken in a row, the size of the last step
@@ -575,7 +584,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
                 if not (finite(hn) and merit(hn).max() < 0.1 * r.max()):
                     break
                 w, h, r = w + dc * d, hn, merit(hn)
-            return w, PointStatus(True, float(r.max()), it)
+            return w, PointStatus(True, relative(w, J, r), it)
         if it == max_iter or n == 0:
             break
         if it and rescale:
@@ -603,14 +612,15 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         if full_steps >= 1 and last_size > 0:
             q = size / last_size
             if q <= LINEAR_RATE and _norm(dr * h + Js @ d) <= 0.5 * _norm(dr * h):
-                ahead = np.abs(d) / (1.0 - q)
-                if np.all(ahead <= POINT_DIST * (1.0 + np.abs(w * inv_dc))):
+                ahead = np.abs(d) / (1.0 - q) / (1.0 + np.abs(w * inv_dc))
+                if np.all(ahead <= POINT_DIST):
                     # converging to a zero the residual test does not see (see above):
                     # the step taken where it does not raise the residual
                     hn = fun(w + dc * d)
                     if finite(hn) and merit(hn).max() <= r.max():
                         w, h, r = w + dc * d, hn, merit(hn)
-                    return w, PointStatus(True, float(r.max()), it)
+                    return w, PointStatus(True, relative(w, J, r), it,
+                                          distance=float(ahead.max()))
         alpha = min(1.0, radius / size) if size > 0 else 1.0
         norm0 = _norm(r)
         dw = dc * d
@@ -629,7 +639,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         radius = 4.0 * alpha * size if alpha * size * 1.5 >= radius else max(alpha * size, 1e-8)
         radius = max(radius, 1e-3 * (1.0 + float(np.abs(wn * inv_dc).max())))
         w, h, r = wn, hn, rn
-    return w, PointStatus(False, float(r.max()), it, worst=_worst(h, dr))
+    return w, PointStatus(False, relative(w, J, r), it, worst=_worst(h, dr))
 
 
 class _CscOps:

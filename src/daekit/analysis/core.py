@@ -53,7 +53,7 @@ from ..points import (
 from ..structure import block_triangular, dulmage_mendelsohn, structural_index
 from ..structure.sigma import NoTransversal
 from ..threads import blas_threads, limit_blas_threads
-from ..wording import derivative_name, listing
+from ..wording import count, derivative_name, listing
 
 __all__ = ["Analysis", "EasyTest", "DerivativeArrayResult", "analyze", "differential_index",
            "is_index1", "derivative_array_dof"]
@@ -494,7 +494,7 @@ def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> Model
 
 
 def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
-                      soft: bool = False, top_first: bool = False
+                      soft: bool = False, top_first: bool = False, why: dict | None = None
                       ) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
@@ -507,7 +507,13 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     with ``soft``): one pair of consistent points and one rank test instead of one per level.
     Where no consistent point of the top level is found that way, the levels are tested in
     turn as without ``top_first``.
+
+    ``why`` (with ``soft``): a dict that gets ``why["unknown"]``, a phrase, where the result
+    None does not mean "not determined up to ``max_index``" but that this was not decided
+    (the array grew too long, or its top level was tested at an inconsistent point).
     """
+    if why is None:
+        why = {}
     rows = [int(i) for i in rows]
     cols = [int(j) for j in cols]
     n = len(cols)
@@ -554,6 +560,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         if (k + 1) * len(rows) <= ARRAY_LIMIT and not swollen:
             return False
         if soft:
+            why["unknown"] = (f"its derivative array grows beyond {ARRAY_LIMIT} rows or "
+                              f"{max(ARRAY_NODES, ARRAY_GROWTH * grown['first'])} expression "
+                              "nodes")
             return True
         if swollen:
             raise ModelError(
@@ -573,8 +582,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             "unknowns at all"
         )
 
-    state = {"rnd": None, "other": None}  # the random point, and the second consistent
-    # point (kept between levels: each level's Gauss-Newton starts where the last one ended)
+    # the random point, the second consistent point (kept between levels: each level's
+    # Gauss-Newton starts where the last one ended), whether the last level tested had one
+    state = {"rnd": None, "other": None, "consistent": True}
 
     def test(k: int):
         """Ranks at level ``k``: ``(r_all, r_rest, fulls)`` over the consistent points."""
@@ -614,7 +624,8 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         # second is not needed where the first attains the random point's ranks, the most
         # any point has
         cache: dict = {}  # the functions of the iteration, made once for both points
-        if not consistent_point(pt, arr, cache=cache).consistent:
+        state["consistent"] = consistent_point(pt, arr, cache=cache).consistent
+        if not state["consistent"]:
             rank_at(pt)  # as it is (pt.status says it is not consistent)
             return r_all, r_rest, fulls
         rank_at(pt)
@@ -661,6 +672,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
     if soft:
+        if not state["consistent"]:
+            why["unknown"] = (f"no consistent point of its derivative array to level "
+                              f"{max_index} was found")
         return None
     raise ModelError(
         f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
@@ -680,8 +694,11 @@ class Analysis:
     structural_index : int
         Pryce's structural index (an ODE has 0).
     index : int
-        The differential index: the structural one where structural analysis succeeds, else
-        from the derivative array.
+        The differential index: where structural analysis succeeds, Pryce's structural index
+        (an upper bound) checked against the derivative array at consistent points and
+        lowered where that finds a lower one (``index_confirmed``); where it fails, from the
+        derivative array. Where a part is too big for the check, it is only an upper bound
+        (``index_unconfirmed``).
     dof : int
         Dynamic degrees of freedom (initial values that can be chosen freely).
     structurally_ok : bool
@@ -711,6 +728,13 @@ class Analysis:
     declared_invariants : list of str
         Invariants declared with :meth:`daekit.Model.invariant` (checked along the dynamics by
         :func:`daekit.reduce_index`); each removes one degree of freedom from ``dof``.
+    index_confirmed : (int, list) or None
+        Where the derivative array lowered Pryce's index: ``(index, [(equations, structural
+        index, differential index)])`` of the parts it lowered.
+    index_unconfirmed : list of (list of str, int, str)
+        The parts whose structural index was not checked against the derivative array
+        ``(equations, structural index, why)``; where this is not empty, ``index`` is only an
+        upper bound of the differential index (empty: ``index`` is the differential index).
     """
 
     model_name: str
@@ -734,6 +758,7 @@ class Analysis:
     structural_part: tuple[int, int] | None = None
     test_points: str = "at a random point"
     index_confirmed: tuple | None = None
+    index_unconfirmed: list[tuple[list[str], int, str]] = field(default_factory=list)
     declared_invariants: list[str] = field(default_factory=list)
     _model: Model | None = field(default=None, repr=False, compare=False)
     _definitions: list[str] | None = field(default=None, repr=False, compare=False)
@@ -770,6 +795,8 @@ class Analysis:
             "model": self.model_name,
             "structural_index": self.structural_index,
             "index": self.index,
+            # True where ``index`` is only Pryce's upper bound (see ``index_unconfirmed``)
+            "index_is_upper_bound": bool(self.index_unconfirmed),
             "dof": self.dof,
             "structurally_ok": self.structurally_ok,
             "equation_offsets": self.equation_offsets,
@@ -858,7 +885,19 @@ def system_jacobian_at(model: Model, c, d) -> _JacobianAt:
     """Pryce's system Jacobian for the offsets ``(c, d)`` as a :class:`_JacobianAt` on the
     pattern of the Sigma matrix's tight entries (``sigma_ij = d_j - c_i``): its values from
     :meth:`daekit.Model.system_jacobian`; made once per model and offsets (analysis and
-    reduction evaluate it at their points)."""
+    reduction evaluate it at their points).
+
+    The planar pendulum ``x'' = T x``, ``y'' = T y - g``, ``x^2 + y^2 = 1`` (offsets ``c =
+    (0, 0, 2)``): the rows ``d/dx''``, ``d/dy''``, ``d/dT`` of the equations and the rod
+    differentiated twice, at ``x = 0.6``, ``y = -0.8``:
+
+    >>> import daekit as dk
+    >>> from daekit.points import TestPoint
+    >>> m = dk.examples.pendulum_planar(); sig = m.sigma()
+    >>> jac = system_jacobian_at(m, sig.c, sig.d)
+    >>> jac.dense(TestPoint(m, {"x": 0.6, "y": -0.8})).round(2).tolist()
+    [[1.0, 0.0, -0.6], [0.0, 1.0, 0.8], [1.2, -1.6, 0.0]]
+    """
     c = np.asarray(c, dtype=np.int64)
     d = np.asarray(d, dtype=np.int64)
 
@@ -1094,8 +1133,11 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
             index, dof = max(part[0], numeric.index), part[1] + numeric.dof
             if not rest_e.any():
                 part = None
-        confirmed = _confirm_index(model, eq_lab, unk_lab, comps, c, d, pt,
-                                   numeric.index if numeric is not None else 0)
+        # where the system Jacobian and the numeric part were tested (the confirmation's own
+        # points are accounted for in ``unconfirmed``)
+        status = pt.status
+        confirmed, unconfirmed = _confirm_index(model, eq_lab, unk_lab, comps, c, d, pt,
+                                                numeric.index if numeric is not None else 0)
         if confirmed is not None:
             index = confirmed[0]
             if part is not None:
@@ -1103,11 +1145,11 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         easy = _easy_test(model, pt)
         remember_consistent(model, pt)  # a start for reduce_index's check at consistent points
         return (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy,
-                pt.status, confirmed)
+                status, confirmed, unconfirmed)
 
     with blas_threads():
         (jac, blocks_idx, rcond, singular, numeric, part, index, dof, easy, status,
-         confirmed) = _at_finite_point(model, point, seed, work, "analyze")
+         confirmed, unconfirmed) = _at_finite_point(model, point, seed, work, "analyze")
     highest = np.zeros(n, dtype=np.int64)
     np.maximum.at(highest, inc.cols, inc.vals)
     declared = [e.element(i) for e in model.declared_invariants for i in range(e.size)]
@@ -1136,6 +1178,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         structural_part=part,
         test_points=_describe_points(model, status, expansion_names(ex) if ex else []),
         index_confirmed=confirmed,
+        index_unconfirmed=unconfirmed,
     )
 
 
@@ -1154,9 +1197,14 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
     index. The model's index is the largest of its connected parts', so only the parts that
     attain the largest structural index are checked, largest first, each only if it has at
     most ``CONFIRM_LIMIT`` unknowns (and ``CONFIRM_ARRAY_LIMIT`` unknowns times levels): the
-    derivative array (at consistent points) up to one
-    level below its structural index. Returns ``(index, [(equations, structural, found)])``
-    when some part's index is lower and the model's index drops, else None."""
+    derivative array (at consistent points) up to one level below its structural index.
+
+    Returns ``(lowered, unconfirmed)``: ``lowered`` is ``(index, [(equations, structural,
+    found)])`` when some part's index is lower and the model's index drops, else None;
+    ``unconfirmed`` lists the parts ``(equations, structural index, why)`` whose structural
+    index stands unchecked (too big, or the derivative array undecided), so that the model's
+    index is only an upper bound; empty where it is the differential index."""
+    names = model.equation_names
     parts = []
     for comp in np.unique(eq_lab):
         if comp in set(np.asarray(skip).tolist()):
@@ -1165,10 +1213,10 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
         cols = np.nonzero(unk_lab == comp)[0]
         parts.append((structural_index(c[rows], d[cols]), rows, cols))
     if not parts:
-        return None
+        return None, []
     top = max(p[0] for p in parts)
     if top <= max(floor, 0):
-        return None
+        return None, []
     inc = model.incidence()
     m_all = np.zeros(inc.n_unknowns, dtype=np.int64)
     np.maximum.at(m_all, inc.cols, inc.vals)
@@ -1177,19 +1225,27 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
         if nu < top:
             found.append(nu)
             continue
+        eqs = [names[i] for i in rows]
         if len(cols) > CONFIRM_LIMIT or len(cols) * nu > CONFIRM_ARRAY_LIMIT:
-            return None
+            why = (f"it has {count(len(cols), 'unknown')}, more than the {CONFIRM_LIMIT} "
+                   if len(cols) > CONFIRM_LIMIT else
+                   f"{count(len(cols), 'unknown')} times {nu} levels exceed the "
+                   f"{CONFIRM_ARRAY_LIMIT} ")
+            return None, [(eqs, nu, why + "checked against the derivative array")]
+        why: dict = {}
         try:
             res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True,
-                                    top_first=True)
-        except (ModelError, _NonFinite):
-            res = None
+                                    top_first=True, why=why)
+        except (ModelError, _NonFinite) as exc:
+            res, why["unknown"] = None, f"its derivative array could not be evaluated ({exc})"
         if res is None:
-            return None  # this part has the structural index: the model's index stays
+            # this part has the structural index (the model's index stays), or it was not
+            # decided
+            return None, ([(eqs, nu, why["unknown"])] if "unknown" in why else [])
         found.append(res.index)
-        lowered.append(([model.equation_names[i] for i in rows], nu, res.index))
+        lowered.append((eqs, nu, res.index))
     index = max(max(found), floor)
-    return (index, lowered) if index < top else None
+    return ((index, lowered) if index < top else None), []
 
 
 def expansion_names(ex) -> list[str]:
@@ -1208,8 +1264,13 @@ def _describe_points(model: Model, status, names: list[str]) -> str:
     if status.consistent:
         if status.given:
             return "at your point (it satisfies the equations and their derivatives)"
+        if status.distance is not None:
+            return ("at consistent points (found by Gauss-Newton, whose converging iteration "
+                    f"puts them within {max(status.distance, 1e-16):.0e} of the solutions, "
+                    "relative to the values: a multiple root or rounding where the residual "
+                    "test cannot decide)")
         return ("at consistent points (the equations and their needed derivatives hold there "
-                f"to {max(status.residual, 1e-16):.0e}, found by Gauss-Newton)")
+                f"to {max(status.residual, 1e-16):.0e} of their terms, found by Gauss-Newton)")
     worst = [names[i] for i in (status.worst or []) if i < len(names)][:4]
     if status.given:
         return ("at YOUR point, as given: it does not satisfy the equations and their needed "

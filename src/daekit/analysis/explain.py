@@ -49,7 +49,19 @@ def _der(name: str, k: int) -> str:
 
 
 def explain(a: Any) -> str:
-    """The account of the analysis ``a`` (an :class:`~daekit.analysis.Analysis`)."""
+    """The account of the analysis ``a`` (an :class:`~daekit.analysis.Analysis`):
+    :meth:`Analysis.explain <daekit.analysis.Analysis.explain>` calls it.
+
+    >>> import daekit as dk
+    >>> text = explain(dk.analyze(dk.examples.pendulum_planar()))
+    >>> print(text.splitlines()[2])  # doctest: +NORMALIZE_WHITESPACE +ELLIPSIS
+    Differential index 3, from structural analysis (Pryce's Sigma-method); the system Jacobian
+    is nonsingular at the test point (reciprocal condition ...), so the structural DOF is
+    the true one, and the derivative array at the test points confirms the index (Pryce's
+    index is only an upper bound of the differential one).
+    >>> "Degrees of freedom: 2 initial values can be chosen freely" in text
+    True
+    """
     n = len(a.equation_offsets)
     n_alg = sum(1 for v in a.highest_order.values() if v == 0)
     lines = [
@@ -58,14 +70,29 @@ def explain(a: Any) -> str:
         + (f", {count(a.n_inputs, 'input')}." if a.n_inputs else "."),
         "",
     ]
+    unconfirmed = getattr(a, "index_unconfirmed", [])
     if a.structurally_ok:
-        lines.append(
-            f"Differential index {a.index}, from structural analysis (Pryce's Sigma-method); the "
-            f"system Jacobian is nonsingular at the test point (reciprocal condition "
-            f"{a.jacobian_rcond:.1e}), so the structural result is the true one."
-        )
+        head = (f"the system Jacobian is nonsingular at the test point (reciprocal condition "
+                f"{a.jacobian_rcond:.1e}), so the structural DOF is the true one")
+        if unconfirmed:
+            lines.append(
+                f"Differential index at most {a.index}, from structural analysis (Pryce's "
+                f"Sigma-method): {head}, but Pryce's index is only an upper bound of the "
+                "differential index and it was not checked here.")
+        elif a.index_confirmed:
+            lines.append(f"Differential index {a.index}: structural analysis (Pryce's "
+                         f"Sigma-method) gives index {a.structural_index}; {head}.")
+        else:
+            lines.append(
+                f"Differential index {a.index}, from structural analysis (Pryce's Sigma-method); "
+                + (f"{head} and the index (an ODE)." if a.structural_index == 0 else
+                   f"{head}, and the derivative array at the test points confirms the index "
+                   "(Pryce's index is only an upper bound of the differential one)."))
     else:
         lines.extend(_explain_failure(a))
+    for eqs, nu, why in unconfirmed:
+        lines.append(f"The structural index {nu} of the equations {listing(eqs, 6)} is not "
+                     f"confirmed: {why}; the differential index may be lower.")
     if a.index_confirmed:
         for eqs, nu, found in a.index_confirmed[1]:
             lines.append(

@@ -339,7 +339,7 @@ def _at_consistent_point(ex, Jf, Xs, Us, J, blocks, seed: int):
     pt = TestPoint(model, None, seed)
     if not consistent_point(pt, levels).consistent:
         return None
-    P0 = np.asarray([float(v.default[i]) for v in model.parameters for i in range(v.size)])
+    P0 = np.asarray(model.parameter_values, dtype=float)
     X0 = pt.evaluate(ca.vertsplit(Xs))
     U0 = pt.evaluate(ca.vertsplit(Us)) if Us.numel() else np.zeros(0)
     Jc = numerics.to_scipy(ca.DM(Jf(pt.t, X0, U0, P0))).tocsr()

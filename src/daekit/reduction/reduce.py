@@ -333,9 +333,7 @@ def _unmet_equations(model: Model, r: ReducedDAE, seed: int = 0) -> list[str]:
     for j, nm in enumerate(names):
         var, i, _ = model.resolve(nm)[0]
         for k in range(int(top[j]) + 1):
-            base, _, idx = nm.partition("[")
-            key = nm if k == 0 else (f"der({base})" if k == 1 else f"der({base},{k})") + (
-                f"[{idx}" if idx else "")
+            key = var.element(i, k)  # "p[0]", "der(p)[0]": the one naming rule (model.element_name)
             if key not in r.variables:
                 return []
             syms.append(var.der(k)[i])

@@ -636,7 +636,7 @@ def initialize(
     if nz and n_alg == nz:
         key = bool(use_sparse)
         if key not in sc.settle:
-            sc.settle[key] = _z_solver(sc.alg, sc.Jz, sc.w, sc.args, nx, use_sparse)
+            sc.settle[key] = _z_solver(sc, nx, use_sparse)
         z_solve = sc.settle[key]
 
         def settle(wv):
@@ -1070,19 +1070,29 @@ def _gn_step(hv, J, gfun, wv, gval, nx=None, n_alg=0, C=None):
     return d, y
 
 
-def _z_solver(alg: ca.SX, Jz: ca.SX, w: ca.SX, args, nx: int, sparse: bool,
-              iters: int = 12):
+def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
     """``settle(w, (t, u, p))``: ``w`` with its ``z`` part re-solved from ``alg(x, z) = 0`` at
     fixed ``x``
     (Newton with SuperLU or dense LU on ``d alg / d z``; one step when ``alg`` is affine in
     ``z``, as for mechanical systems). Where ``d alg / d z`` is singular or Newton does not
-    converge, ``w`` is returned unchanged (the joint step stands)."""
-    zs = w[nx:]
-    affine = not ca.depends_on(Jz, zs)
-    afun = FastFunction(ca.Function("alg_z", list(args), [alg, Jz]))
-    ccs = _ccs(afun.f.sparsity_out(1))
+    converge, ``w`` is returned unchanged (the joint step stands). ``alg`` and ``d alg / dz``
+    come from the system's ``core_fun`` (no CasADi function of their own: at 20,000 links
+    making one cost more than evaluating the invariants beside them at every settle)."""
+    zs = sc.w[nx:]
+    affine = not ca.depends_on(sc.Jz, zs)
+    n_alg = int(sc.alg.numel())
+    # d alg / dz: the columns nx: of d alg / dw, contiguous in its CCS order
+    colind, row, shape, _ = _ccs(sc.jacobians["alg"].sparsity())
+    start = int(colind[nx])
+    z_colind = colind[nx:] - start
+    ccs = (z_colind, row[start:], (shape[0], shape[1] - nx),
+           np.repeat(np.arange(shape[1] - nx, dtype=np.int64), np.diff(z_colind)))
+
+    def afun(wv, *vals):
+        c, Ja, *_ = sc.core_fun(wv, *vals)
+        return c[:n_alg], Ja[start:]
     count = 1 if affine else iters
-    scalar = not sparse and int(zs.numel()) == 1 and int(alg.numel()) == 1
+    scalar = not sparse and int(zs.numel()) == 1 and n_alg == 1
 
     def settle(wv: np.ndarray, vals) -> np.ndarray:
         w1 = np.array(wv, dtype=float)

@@ -57,8 +57,8 @@ SMALL_MATCHING = 64
 def structurally_nonsingular(n_rows: int, n_cols: int, rows, cols) -> bool:
     """Whether the square pattern ``(rows, cols)`` has a perfect matching (the answer of
     ``dulmage_mendelsohn(...).is_square_nonsingular``). Up to ``SMALL_MATCHING`` rows by
-    augmenting paths in Python (SciPy's set-up costs more than the search), beyond by
-    :func:`dulmage_mendelsohn`.
+    augmenting paths in Python (SciPy's set-up costs more than the search), beyond by SciPy's
+    maximum matching (without the rest of :func:`dulmage_mendelsohn`).
 
     >>> structurally_nonsingular(2, 2, [0, 1], [0, 0])
     False
@@ -67,8 +67,10 @@ def structurally_nonsingular(n_rows: int, n_cols: int, rows, cols) -> bool:
     """
     if n_rows != n_cols:
         return False
-    if n_rows > SMALL_MATCHING:
-        return dulmage_mendelsohn(n_rows, n_cols, rows, cols).is_square_nonsingular
+    if n_rows > SMALL_MATCHING:  # a maximum matching (Hopcroft--Karp, SciPy) alone
+        a = _pattern(n_rows, n_cols, rows, cols)
+        match = np.asarray(sp.csgraph.maximum_bipartite_matching(a, perm_type="row"))
+        return bool(np.all(match >= 0))
     adj: list[list[int]] = [[] for _ in range(n_rows)]
     for i, j in zip(np.asarray(rows).tolist(), np.asarray(cols).tolist(), strict=True):
         adj[i].append(j)

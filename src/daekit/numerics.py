@@ -61,7 +61,9 @@ NOISE = 1e-13
 #: Entries below this fraction of their row's largest (unscaled) count as zero for the scaling.
 ROW_NOISE = 1e-20
 #: Matrices with at most this many entries are equilibrated as dense arrays (also when given
-#: sparse): the same arithmetic, without SciPy's per-call overhead.
+#: sparse, unless fewer than one in 50 of the entries beyond 2000 are nonzero: a 200 x 200
+#: with 600 nonzeros took 1.95 ms dense, 0.64 ms sparse): the same arithmetic, without
+#: SciPy's per-call overhead.
 DENSE_EQUILIBRATE = 40000
 #: Curtis--Reid's normal equations up to this size (rows plus columns) are solved densely.
 DENSE_CR = 150
@@ -85,7 +87,7 @@ def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
     True
     """
     issparse = sp.issparse(A)
-    if issparse and A.shape[0] * A.shape[1] <= DENSE_EQUILIBRATE:
+    if issparse and A.shape[0] * A.shape[1] <= min(DENSE_EQUILIBRATE, 2000 + 50 * A.nnz):
         A, issparse = A.toarray(), False
     if not issparse:
         return _equilibrate_dense(A)
@@ -417,8 +419,11 @@ def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
 def equilibrated(A):
     """``diag(dr) A diag(dc)`` with the factors of :func:`equilibrate` (same kind as ``A``)."""
     dr, dc = equilibrate(A)
-    if sp.issparse(A):
-        return sp.csc_matrix(sp.diags(dr) @ A @ sp.diags(dc))
+    if sp.issparse(A):  # the factors placed on the nonzeros (no sparse products)
+        A = sp.csc_matrix(A)
+        cols = np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))
+        return sp.csc_matrix((A.data * dr[A.indices] * dc[cols], A.indices, A.indptr),
+                             shape=A.shape)
     return np.asarray(A, dtype=float) * dr[:, None] * dc[None, :]
 
 

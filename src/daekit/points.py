@@ -573,10 +573,11 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         if np.all(r <= level(w, J)):
             # polish to rounding: full Newton steps while the residual drops tenfold (the
             # Jacobians at the point must not carry residue of terms that vanish there)
-            for _ in range(4):
+            for polish in range(4):
                 if not (r.max() > 0 and n):
                     break
-                J = jac(w)
+                if polish:  # (the first at the point whose Jacobian J is already)
+                    J = jac(w)
                 d = _min_norm_step(scaled(J), dr * h)
                 if d is None or not np.all(np.isfinite(d)):
                     break

@@ -497,6 +497,16 @@ def test_confirmed_index_on_textbook_models():
     assert b.index == 0 and "(an ODE)" in b.explain()
 
 
+def test_points_consistent_says_where_the_numbers_hold():
+    # seed 7 (structural analysis fails; Gauss-Newton finds no consistent point of a level of
+    # its derivative array): the result says so, in the field and in explain()
+    a = dk.analyze(generate(7).model)
+    assert a.points_consistent is False and a.to_dict()["points_consistent"] is False
+    assert "at a RANDOM point" in a.explain()
+    assert dk.analyze(dk.examples.l3()).points_consistent is True
+    assert dk.analyze(dk.examples.l3(), consistent=False).points_consistent is None
+
+
 def test_slider_crank_analysis_at_consistent_points():
     # Gauss-Newton's rows of cancelling terms left a residual of 4e-13 the per-row test could
     # not accept: the analysis fell back to a random point (test set slider crank, reference
@@ -504,6 +514,7 @@ def test_slider_crank_analysis_at_consistent_points():
     a = dk.analyze(dk.examples.slider_crank())
     assert (a.index, a.dof) == (2, 11)
     assert a.test_points.startswith("at consistent points"), a.test_points
+    assert a.points_consistent
 
 
 def test_generator_reaches_60_unknowns():

@@ -176,3 +176,31 @@ def test_primal_dual_transversal_is_highest_value_on_random_patterns():
         assert np.all(c >= 0) and np.all(d[cols] - c[rows] >= vals)
         solved += 1
     assert singular > 20 and solved > 200, (singular, solved)
+
+
+def test_structurally_nonsingular_agrees_with_dulmage_mendelsohn():
+    """The small-pattern matching (Python augmenting paths) and the big one (SciPy, through
+    Dulmage--Mendelsohn) give the verdict of a perfect matching's existence, checked against
+    brute force over all permutations on tiny patterns."""
+    import itertools
+
+    import numpy as np
+
+    from daekit.structure import dulmage_mendelsohn, structurally_nonsingular
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        n = int(rng.integers(1, 6))
+        k = int(rng.integers(0, 2 * n + 1))
+        rows, cols = rng.integers(0, n, k), rng.integers(0, n, k)
+        pattern = set(zip(rows.tolist(), cols.tolist()))
+        brute = any(all((i, p[i]) in pattern for i in range(n))
+                    for p in itertools.permutations(range(n)))
+        assert structurally_nonsingular(n, n, rows, cols) == brute
+        assert dulmage_mendelsohn(n, n, rows, cols).is_square_nonsingular == brute
+    assert not structurally_nonsingular(2, 3, [0, 1], [0, 1])
+    # beyond SMALL_MATCHING rows: SciPy's route; a chain pattern and one with an empty column
+    n = 100
+    diag = np.arange(n)
+    assert structurally_nonsingular(n, n, np.r_[diag, diag[1:]], np.r_[diag, diag[:-1]])
+    assert not structurally_nonsingular(n, n, diag, np.minimum(diag, n - 2))

@@ -70,6 +70,7 @@ import scipy.sparse as sp
 
 from .errors import InitializationError
 from .numerics import FastFunction, equilibrate
+from .points import system_jacobians
 from .threads import blas_threads, gc_paused, limit_blas_threads
 from .wording import count
 
@@ -282,21 +283,23 @@ class _SystemCache:
         V = ca.vertcat(*[ca.SX(e) if not isinstance(e, ca.SX) else e for e in exprs]) \
             if exprs else ca.SX(0, 1)
         W = ca.vertcat(r.x, r.z)
-        if W.numel() and not W.is_valid_input():  # x, z not plain symbols: substitute once
+        shared = system_jacobians(r)  # None where x, z are not plain symbols
+        if shared is None:  # substituted once
             w = ca.SX.sym("w", nx + nz)
             alg, inv, V = ca.substitute([ca.SX(r.alg), ca.SX(r.invariants), V], [W], [w])
-        else:
-            w, alg, inv = W, ca.SX(r.alg), ca.SX(r.invariants)
+            self.alg = ca.vec(ca.densify(alg))
+            self.inv = ca.vec(ca.densify(inv)) if inv.numel() else ca.SX(0, 1)
+            # one Jacobian per block (CasADi's jacobian of the stacked rows costs more)
+            Jalg = ca.jacobian(self.alg, w)
+            Jinv = ca.jacobian(self.inv, w) if self.inv.numel() else None
+        else:  # the system's own Jacobians (made once, shared with its consistent points)
+            w = W
+            self.alg, self.inv, Jalg, Jinv = shared
         self.w = w
-        self.alg = ca.vec(ca.densify(alg))
-        self.inv = ca.vec(ca.densify(inv)) if inv.numel() else ca.SX(0, 1)
         self.V = ca.vec(ca.densify(V))
         self.args = [w, r.t, r.u, r.p]
         core = ca.vertcat(self.alg, self.inv)
         self.core = core
-        # one Jacobian per block (CasADi's jacobian of the stacked rows costs more than both)
-        Jalg = ca.jacobian(self.alg, w)
-        Jinv = ca.jacobian(self.inv, w) if self.inv.numel() else None
         self.jacobians = {"alg": Jalg, "inv": Jinv}  # symbolic, for the Hessians
         self.Jz = Jalg[:, nx:]  # d alg / d z (for settle)
         # [core, J_alg, J_inv]: the stacked Jacobian's nonzeros placed numerically (the

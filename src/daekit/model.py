@@ -999,7 +999,7 @@ class Model:
         unknowns exists), else the Dulmage--Mendelsohn decomposition names the over- and
         under-determined parts.
         """
-        from .structure import dulmage_mendelsohn
+        from .structure import dulmage_mendelsohn, structurally_nonsingular
 
         if self._cache.get("valid"):  # checked already, and the model has not changed since
             return
@@ -1019,10 +1019,10 @@ class Model:
                     "(or m.variable(...)) or use m.der on it"
                 )
         eq_names = self.equation_names
-        dm = dulmage_mendelsohn(inc.n_equations, inc.n_unknowns, inc.rows, inc.cols)
-        if dm.is_square_nonsingular:
+        if structurally_nonsingular(inc.n_equations, inc.n_unknowns, inc.rows, inc.cols):
             self._cache["valid"] = True
             return
+        dm = dulmage_mendelsohn(inc.n_equations, inc.n_unknowns, inc.rows, inc.cols)
         over_e = [eq_names[i] for i in dm.over_rows]
         over_v = [names[j] for j in dm.over_cols]
         under_e = [eq_names[i] for i in dm.under_rows]

@@ -178,10 +178,15 @@ def _equilibrate_dense(A) -> tuple[np.ndarray, np.ndarray]:
     scaled entries are ``L + e_r + e_c`` (integer exponents, added exactly), so that each
     Ruiz sweep is a few whole-array operations and no product is formed; the factors are
     those of the same iteration on ``|A|`` itself."""
-    B = np.abs(np.atleast_2d(np.asarray(A, dtype=float)))
-    m, n = B.shape
+    a = np.atleast_2d(np.asarray(A, dtype=float))
+    m, n = a.shape
     if m == 0 or n == 0:
         return np.ones(m), np.ones(n)
+    if m * n <= TINY_DENSE:  # the nonzeros picked in Python (no whole-array set-up)
+        picked = _tiny_entries(a.tolist())
+        if picked is not None:
+            return _equilibrate_tiny(m, n, *picked)
+    B = np.abs(a)
     ok = np.isfinite(B)
     if not ok.all():
         B = np.where(ok, B, 0.0)
@@ -208,6 +213,31 @@ _LOG2_NOISE = float(np.log2(NOISE))
 #: where NumPy's per-call overhead is most of the time (Gauss--Newton on a pendulum
 #: re-equilibrates a 5-by-7 Jacobian at every iterate).
 TINY_EQUILIBRATE = 48
+
+
+#: Dense matrices of at most this many entries have their nonzeros picked by
+#: :func:`_tiny_entries`.
+TINY_DENSE = 160
+
+
+def _tiny_entries(rows_list: list[list[float]]):
+    """``(rows, cols, log2 |a_ij|)`` of the entries of a small dense matrix (given as lists)
+    that :func:`_equilibrate_dense` keeps -- finite, nonzero, above ``ROW_NOISE`` times
+    their row's largest -- in row-major order; None when there are more than
+    ``TINY_EQUILIBRATE``. The same selection as the array code, in Python floats."""
+    rl, cl, vals = [], [], []
+    for i, row in enumerate(rows_list):
+        row = [abs(x) if math.isfinite(x) else 0.0 for x in row]
+        top = ROW_NOISE * max(row)
+        for j, x in enumerate(row):
+            if x > top:  # (x > 0 also where the row is zero)
+                rl.append(i)
+                cl.append(j)
+                vals.append(x)
+        if len(vals) > TINY_EQUILIBRATE:
+            return None
+    return (np.array(rl, dtype=np.int64), np.array(cl, dtype=np.int64),
+            np.log2(np.array(vals, dtype=float)))
 
 
 def _equilibrate_tiny(m: int, n: int, rows: np.ndarray, cols: np.ndarray, logs: np.ndarray):
@@ -241,10 +271,14 @@ def _equilibrate_tiny(m: int, n: int, rows: np.ndarray, cols: np.ndarray, logs: 
 
     er, ec = ruiz([0.0] * m, [0.0] * n)
     keep = [k for k, (i, j, v) in enumerate(entries) if v + er[i] + ec[j] > _LOG2_NOISE]
-    kr = rows[keep] if keep else rows[:0]
-    kc = cols[keep] if keep else cols[:0]
-    lr, lc = _curtis_reid_log(m, n, kr, kc, logs[keep] if keep else logs[:0])
-    er, ec = ruiz(np.round(lr).tolist(), np.round(lc).tolist())
+    if len(keep) == len(entries):
+        lr, lc = _curtis_reid_log(m, n, rows, cols, logs)
+    else:
+        kr = rows[keep] if keep else rows[:0]
+        kc = cols[keep] if keep else cols[:0]
+        lr, lc = _curtis_reid_log(m, n, kr, kc, logs[keep] if keep else logs[:0])
+    # (Python's round is NumPy's half to even)
+    er, ec = ruiz([float(round(x)) for x in lr.tolist()], [float(round(x)) for x in lc.tolist()])
     return np.exp2(np.array(er, dtype=float)), np.exp2(np.array(ec, dtype=float))
 
 

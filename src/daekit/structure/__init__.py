@@ -8,9 +8,15 @@ derivative order of unknown ``cols[k]`` in equation ``rows[k]``; missing entries
 - :func:`structural_index` -- Pryce's structural index from the offsets.
 - :func:`block_triangular` -- block lower triangular (BLT) order of a square system.
 - :func:`dulmage_mendelsohn` -- over-, well- and under-determined parts of any system.
+- :func:`structurally_nonsingular` -- whether a square pattern has a perfect matching.
 """
 
-from .decompose import DMDecomposition, block_triangular, dulmage_mendelsohn
+from .decompose import (
+    DMDecomposition,
+    block_triangular,
+    dulmage_mendelsohn,
+    structurally_nonsingular,
+)
 from .sigma import (
     SigmaAnalysis,
     canonical_offsets,
@@ -28,4 +34,5 @@ __all__ = [
     "highest_value_transversal",
     "sigma_method",
     "structural_index",
+    "structurally_nonsingular",
 ]

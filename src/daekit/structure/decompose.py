@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["DMDecomposition", "dulmage_mendelsohn", "block_triangular"]
+__all__ = ["DMDecomposition", "dulmage_mendelsohn", "block_triangular", "structurally_nonsingular"]
 
 
 @dataclass
@@ -48,6 +48,42 @@ def _pattern(n_rows: int, n_cols: int, rows, cols) -> sp.csr_matrix:
     a = sp.csr_matrix((data, (np.asarray(rows), np.asarray(cols))), shape=(n_rows, n_cols))
     a.sum_duplicates()
     return a
+
+
+#: Patterns up to this many rows are matched in Python by :func:`structurally_nonsingular`.
+SMALL_MATCHING = 64
+
+
+def structurally_nonsingular(n_rows: int, n_cols: int, rows, cols) -> bool:
+    """Whether the square pattern ``(rows, cols)`` has a perfect matching (the answer of
+    ``dulmage_mendelsohn(...).is_square_nonsingular``). Up to ``SMALL_MATCHING`` rows by
+    augmenting paths in Python (SciPy's set-up costs more than the search), beyond by
+    :func:`dulmage_mendelsohn`.
+
+    >>> structurally_nonsingular(2, 2, [0, 1], [0, 0])
+    False
+    >>> structurally_nonsingular(2, 2, [0, 1, 1], [0, 0, 1])
+    True
+    """
+    if n_rows != n_cols:
+        return False
+    if n_rows > SMALL_MATCHING:
+        return dulmage_mendelsohn(n_rows, n_cols, rows, cols).is_square_nonsingular
+    adj: list[list[int]] = [[] for _ in range(n_rows)]
+    for i, j in zip(np.asarray(rows).tolist(), np.asarray(cols).tolist(), strict=True):
+        adj[i].append(j)
+    match_col = [-1] * n_cols  # row matched to each column
+
+    def augment(i: int, seen: list[bool]) -> bool:
+        for j in adj[i]:
+            if not seen[j]:
+                seen[j] = True
+                if match_col[j] < 0 or augment(match_col[j], seen):
+                    match_col[j] = i
+                    return True
+        return False
+
+    return all(augment(i, [False] * n_cols) for i in range(n_rows))
 
 
 def dulmage_mendelsohn(n_rows: int, n_cols: int, rows, cols) -> DMDecomposition:

@@ -449,10 +449,11 @@ FORMERLY_WRONG = [7, 32, 96, 104, 135, 224, 263, 276, 393, 488]
 FORMERLY_WRONG += [229]
 #: Session 5: seed 15 (no consistent point of its derivative array: Gauss-Newton's per-row test
 #: could not be met in rows whose terms cancel, residual 5e-12; DOF 4 at an inconsistent point
-#: against the true 3) and seed 146 (Pryce's index 7 of a 16-unknown part, truly 5: the
+#: against the true 3). Seed 146 (Pryce's index 7 of a 16-unknown part, truly 5: the
 #: confirming derivative array jumped to its level 6 in one Gauss-Newton solve, which drifted
-#: to values of 1e16, and its ranks at the inconsistent point said "not determined").
-FORMERLY_WRONG += [15, 146]
+#: to values of 1e16, and its ranks at the inconsistent point said "not determined") is
+#: test_confirmed_index_is_said_so.
+FORMERLY_WRONG += [15]
 
 
 @pytest.mark.parametrize("seed", FORMERLY_WRONG)

@@ -449,10 +449,11 @@ FORMERLY_WRONG = [7, 32, 96, 104, 135, 224, 263, 276, 393, 488]
 FORMERLY_WRONG += [229]
 #: Session 5: seed 15 (no consistent point of its derivative array: Gauss-Newton's per-row test
 #: could not be met in rows whose terms cancel, residual 5e-12; DOF 4 at an inconsistent point
-#: against the true 3) and seed 146 (Pryce's index 7 of a 16-unknown part, truly 5: the
+#: against the true 3). Seed 146 (Pryce's index 7 of a 16-unknown part, truly 5: the
 #: confirming derivative array jumped to its level 6 in one Gauss-Newton solve, which drifted
-#: to values of 1e16, and its ranks at the inconsistent point said "not determined").
-FORMERLY_WRONG += [15, 146]
+#: to values of 1e16, and its ranks at the inconsistent point said "not determined") is
+#: test_confirmed_index_is_said_so.
+FORMERLY_WRONG += [15]
 
 
 @pytest.mark.parametrize("seed", FORMERLY_WRONG)
@@ -497,6 +498,20 @@ def test_confirmed_index_on_textbook_models():
     assert b.index == 0 and "(an ODE)" in b.explain()
 
 
+def test_points_consistent_says_where_the_numbers_hold():
+    # x' = z, x^2 + 1 = 0 has no real solution, so no consistent point: the result says so,
+    # in the field and in explain() (its numbers are those of a random point)
+    m = dk.Model("no_real_solution")
+    x, z = m.state("x"), m.algebraic("z")
+    m.equation(m.der(x) - z, name="kin")
+    m.equation(x**2 + 1, name="never")
+    a = dk.analyze(m)
+    assert a.points_consistent is False and a.to_dict()["points_consistent"] is False
+    assert "at a RANDOM point" in a.explain()
+    assert dk.analyze(dk.examples.l3()).points_consistent is True
+    assert dk.analyze(dk.examples.l3(), consistent=False).points_consistent is None
+
+
 def test_slider_crank_analysis_at_consistent_points():
     # Gauss-Newton's rows of cancelling terms left a residual of 4e-13 the per-row test could
     # not accept: the analysis fell back to a random point (test set slider crank, reference
@@ -504,6 +519,7 @@ def test_slider_crank_analysis_at_consistent_points():
     a = dk.analyze(dk.examples.slider_crank())
     assert (a.index, a.dof) == (2, 11)
     assert a.test_points.startswith("at consistent points"), a.test_points
+    assert a.points_consistent
 
 
 def test_generator_reaches_60_unknowns():

@@ -731,6 +731,13 @@ class Analysis:
     index_confirmed : (int, list) or None
         Where the derivative array lowered Pryce's index: ``(index, [(equations, structural
         index, differential index)])`` of the parts it lowered.
+    test_points : str
+        Where the numeric tests were evaluated, as a phrase for :meth:`explain`.
+    points_consistent : bool or None
+        True where the numeric tests ran at consistent points; False where none was found
+        and they ran at a random point (or the user's inconsistent ``point=``), so that
+        ``index``, ``dof`` and ``structurally_ok`` may not hold on the solutions; None where
+        a random point was used by choice (``consistent=False``, or a large model).
     index_unconfirmed : list of (list of str, int, str)
         The parts whose structural index was not checked against the derivative array
         ``(equations, structural index, why)``; where this is not empty, ``index`` is only an
@@ -757,6 +764,7 @@ class Analysis:
     singular_blocks: list[list[str]] = field(default_factory=list)
     structural_part: tuple[int, int] | None = None
     test_points: str = "at a random point"
+    points_consistent: bool | None = None
     index_confirmed: tuple | None = None
     index_unconfirmed: list[tuple[list[str], int, str]] = field(default_factory=list)
     declared_invariants: list[str] = field(default_factory=list)
@@ -797,6 +805,7 @@ class Analysis:
             "index": self.index,
             # True where ``index`` is only Pryce's upper bound (see ``index_unconfirmed``)
             "index_is_upper_bound": bool(self.index_unconfirmed),
+            "points_consistent": self.points_consistent,
             "dof": self.dof,
             "structurally_ok": self.structurally_ok,
             "equation_offsets": self.equation_offsets,
@@ -1177,6 +1186,7 @@ def analyze(model: Model, point: dict | None = None, seed: int = 0,
         singular_blocks=[[eq_names[i] for i in b] for b in singular],
         structural_part=part,
         test_points=_describe_points(model, status, expansion_names(ex) if ex else []),
+        points_consistent=None if status is None else bool(status.consistent),
         index_confirmed=confirmed,
         index_unconfirmed=unconfirmed,
     )

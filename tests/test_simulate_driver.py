@@ -4,8 +4,8 @@ dummy derivatives on the double pendulum, projection on a long chain, robustness
 from __future__ import annotations
 
 import ast
-import importlib
 import gc
+import importlib
 import io
 import pathlib
 import weakref

@@ -42,7 +42,7 @@ from common import best_of  # noqa: E402 - benchmarks/ is the script directory
 
 import daekit as dk
 
-REPEAT = 9
+REPEAT = 15
 T_END = 10.0
 G = 9.81
 P0 = [float(np.sin(0.6)), 0.0, float(-np.cos(0.6))]

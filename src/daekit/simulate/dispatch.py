@@ -24,7 +24,7 @@ from ..wording import count
 from .driver import Driver
 from .idas import run_algebraic, run_idas
 from .projection import DriftMonitor, Projector, default_drift_tol
-from .system import EVENT_KEYWORDS, check_idas_options, signal_for, system_for
+from .system import EVENT_KEYWORDS, check_idas_options, check_sized_options, signal_for, system_for
 from .trajectory import Trajectory
 
 __all__ = ["simulate", "STABILIZATIONS"]
@@ -365,6 +365,8 @@ def simulate(
         # test (the index-2 variables' errors do not converge at the order of the method),
         # else IDAS takes tiny steps (Brenan, Campbell, Petzold 1996, sec. 5.4)
         options = {**options, "suppress_algebraic": True}
+    if options:
+        check_sized_options(r_int, options, reselects=stabilization == "dummy_derivatives")
     pv = resolve_params(r_int, params)
     sig = signal_for(r_int, inputs)
     U = sig.values(tg)  # NaN check on the grid (names the input)

@@ -346,10 +346,14 @@ def simulate_dummy(r, tg, x0, z0, inputs, pv, rtol, atol, options, progress: boo
     # against the exact solutions (positions, largest error over the grid): the 3D pendulum
     # 10 s at rtol 1e-4 .. 1e-10 takes 0.69-0.93x the steps of the hand-written index-1 form
     # and is 2.3-16x more accurate than it (1838 -> 940 steps at 1e-8, error 6.8e-7 -> 5.5e-7);
-    # the planar pendulum from horizontal (100 s, 2001 points) 32994 instead of 111288 steps
-    # at rtol 1e-6, error 9.4e-2 against 3.2e-2 (plain IDAS 2.0e-1), 79228 instead of 109021
-    # at 1e-8, 4.1e-4 against 5.2e-4 (plain 1.1e-3); the double pendulum 20 s at most 0.7x
-    # plain IDAS's error at rtol 1e-6 .. 1e-10 (201 and 2001 points). (With the full, not
+    # the planar pendulum from horizontal (100 s, 2001 points) 35393 instead of 125760 steps
+    # at rtol 1e-6, 3.9 s instead of 22 s, error 1.1e-1 against 1.9e-2 (plain IDAS 2.0e-1);
+    # 87490 instead of 69323 steps at 1e-8, 4.6 s instead of 26 s, 2.2e-4 against 2.4e-5
+    # (plain 1.1e-3): less accurate than with the dummies in the test, which took 3-10x the
+    # steps the tolerance asks for, still 2-5x more than plain IDAS; the (chaotic) double
+    # pendulum 20 s
+    # 0.36-1.04x plain IDAS's error at rtol 1e-6 .. 1e-10 (201 and 2001 points), in 2-4x less
+    # time than with the dummies in the error test. (With the full, not
     # compacted, dummy-derivative systems of earlier versions it had made the planar pendulum
     # 6-9x less accurate.) tests/test_simulate_driver.py checks these accuracies.
     options = dict(options)

@@ -350,7 +350,7 @@ def simulate_dummy(r, tg, x0, z0, inputs, pv, rtol, atol, options, progress: boo
     # at rtol 1e-6, 3.9 s instead of 22 s, error 1.1e-1 against 1.9e-2 (plain IDAS 2.0e-1);
     # 87490 instead of 69323 steps at 1e-8, 4.6 s instead of 26 s, 2.2e-4 against 2.4e-5
     # (plain 1.1e-3): less accurate than with the dummies in the test, which took 3-10x the
-    # steps the tolerance asks for, still 2-5x more than plain IDAS; the (chaotic) double
+    # steps the tolerance asks for, still 1.8-5x more accurate than plain IDAS; the (chaotic) double
     # pendulum 20 s
     # 0.36-1.04x plain IDAS's error at rtol 1e-6 .. 1e-10 (201 and 2001 points), in 2-4x less
     # time than with the dummies in the error test. (With the full, not

@@ -343,19 +343,19 @@ def simulate_dummy(r, tg, x0, z0, inputs, pv, rtol, atol, options, progress: boo
     # multipliers) are left out of IDAS's error test (suppress_algebraic=True, unless the user
     # says otherwise): they follow from the selected states through alg = 0, whose pivot the
     # monitor keeps well conditioned, so the states' error test controls them. Measured
-    # against the exact solutions (positions, largest error over the grid): the 3D pendulum
-    # 10 s at rtol 1e-4 .. 1e-10 takes 0.69-0.93x the steps of the hand-written index-1 form
-    # and is 2.3-16x more accurate than it (1838 -> 940 steps at 1e-8, error 6.8e-7 -> 5.5e-7);
-    # the planar pendulum from horizontal (100 s, 2001 points) 35393 instead of 125760 steps
-    # at rtol 1e-6, 3.9 s instead of 22 s, error 1.1e-1 against 1.9e-2 (plain IDAS 2.0e-1);
-    # 87490 instead of 69323 steps at 1e-8, 4.6 s instead of 26 s, 2.2e-4 against 2.4e-5
-    # (plain 1.1e-3): less accurate than with the dummies in the test, which took 3-10x the
-    # steps the tolerance asks for, still 1.8-5x more accurate than plain IDAS; the (chaotic) double
-    # pendulum 20 s
-    # 0.36-1.04x plain IDAS's error at rtol 1e-6 .. 1e-10 (201 and 2001 points), in 2-4x less
-    # time than with the dummies in the error test. (With the full, not
-    # compacted, dummy-derivative systems of earlier versions it had made the planar pendulum
-    # 6-9x less accurate.) tests/test_simulate_driver.py checks these accuracies.
+    # against exact solutions (positions, largest error over the grid), with the dummies in
+    # the test -> out of it:
+    # - 3D pendulum, 10 s, rtol 1e-4 .. 1e-10: 0.69-0.93x the steps of the hand-written
+    #   index-1 form and 2.3-16x more accurate than it (rtol 1e-8: 1838 -> 940 steps, error
+    #   6.8e-7 -> 5.5e-7; at 1e-9 and 1e-10 5-6x less accurate than with the dummies);
+    # - planar pendulum from horizontal, 100 s, 2001 points: rtol 1e-6 22 s -> 3.9 s, error
+    #   1.9e-2 -> 1.1e-1 (plain IDAS 2.0e-1); rtol 1e-8 26 s -> 4.6 s, 2.4e-5 -> 2.2e-4 (plain
+    #   1.1e-3): less accurate than before, still more accurate than plain IDAS;
+    # - the (chaotic) double pendulum, 20 s, rtol 1e-6 .. 1e-10, 201 and 2001 points:
+    #   0.36-1.04x plain IDAS's error, 2-4x less time than with the dummies.
+    # (With the full, not compacted, dummy-derivative systems of earlier versions it had made
+    # the planar pendulum 6-9x less accurate.) tests/test_simulate_driver.py checks the
+    # accuracy against plain IDAS.
     options = dict(options)
     options.setdefault("suppress_algebraic", True)
     # (IDAS's own Newton test, nonlin_conv_coeff 0.33: a tighter 0.1 took the 3D pendulum

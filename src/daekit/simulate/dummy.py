@@ -354,8 +354,8 @@ def simulate_dummy(r, tg, x0, z0, inputs, pv, rtol, atol, options, progress: boo
     # - the (chaotic) double pendulum, 20 s, rtol 1e-6 .. 1e-10, 201 and 2001 points:
     #   0.36-1.04x plain IDAS's error, 2-4x less time than with the dummies.
     # (With the full, not compacted, dummy-derivative systems of earlier versions it had made
-    # the planar pendulum 6-9x less accurate.) tests/test_simulate_driver.py checks the
-    # accuracy against plain IDAS.
+    # the planar pendulum 6-9x less accurate than plain IDAS.) tests/test_simulate_driver.py
+    # checks the accuracy against plain IDAS.
     options = dict(options)
     options.setdefault("suppress_algebraic", True)
     # (IDAS's own Newton test, nonlin_conv_coeff 0.33: a tighter 0.1 took the 3D pendulum

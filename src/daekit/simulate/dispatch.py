@@ -251,7 +251,7 @@ def simulate(
         (``dk.ggl(r)``) and for ``stabilization="dummy_derivatives"``
         ``suppress_algebraic=True`` is the default (IDAS's error test on the selected states
         only: the dummies follow from them through the kept constraints; measured at least as
-        accurate as plain IDAS at the same tolerance and 2-6x faster than with the dummies in
+        accurate as plain IDAS at the same tolerance and 1.2-6x faster than with the dummies in
         the test, which is more accurate still on some problems: see
         :func:`daekit.simulate.dummy.simulate_dummy`); pass ``suppress_algebraic=False`` to
         include them.

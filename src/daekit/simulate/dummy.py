@@ -18,7 +18,7 @@ Should IDAS fail in a segment, the monitor re-selects at the segment's start (``
 One integrator is built per selection and reused. IDAS's error test covers the selected
 states only (``suppress_algebraic=True`` unless the user passes it): the dummies and multipliers
 follow from the states through the kept constraints (measured at least as accurate as plain
-IDAS, and 2-6x faster than with them in the test: see :func:`simulate_dummy`). At recorded
+IDAS, and 1.2-6x faster than with them in the test: see :func:`simulate_dummy`). At recorded
 points the algebraic unknowns
 are polished by Newton's method, so the original constraints (among ``alg``) hold to rounding.
 """

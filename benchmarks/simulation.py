@@ -18,14 +18,17 @@ holds the waiting for a core); daekit's time
 includes reading ``traj["p"]`` (its trajectory evaluates the model's other variables and the
 invariants only when they are read). The error is the largest position error over the grid
 against the hand form at rtol 1e-12. The table gives wall time, IDAS steps, error and max
-|rod| for 21 .. 20001 output points. A second table gives the step counts of the plain form
-and the hand form at 9 tolerances between 5e-9 and 2e-8 (see :func:`sweep`), and checks
-that the two algebraic equations are the same function to rounding (:func:`same_equations`).
+|rod| for 21 .. 20001 output points. Then every method against the hand form at 13
+tolerances from 1e-4 to 1e-10 on 21 and 2001 points (:func:`sweep`), the step counts from
+40 starts perturbed by one part in 1e15 (:func:`lottery`: IDAS's count at one tolerance is
+erratic, for the hand form too), and a check that the two algebraic equations are the same
+function to rounding (:func:`same_equations`).
 
 Part 2, the planar chain of 500 links, 1 s from a bent rest, rtol = atol = 1e-6: plain and
 projection, wall time and steps.
 
-Run: ``python benchmarks/simulation.py [--quick] [--chain]`` (``--chain``: part 2 only)
+Run: ``python benchmarks/simulation.py [--quick] [--chain] [--sweep]`` (``--chain``: part 2
+only; ``--sweep``: the tolerance sweep and the perturbed starts only)
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from common import best_of  # noqa: E402 - benchmarks/ is the script directory
 
 import daekit as dk
 
-REPEAT = 9
+REPEAT = 15
 T_END = 10.0
 G = 9.81
 P0 = [float(np.sin(0.6)), 0.0, float(-np.cos(0.6))]
@@ -94,6 +97,9 @@ def part1(quick: bool) -> None:
     fixed = {"p": P0, "v": V0}
     init, initd = dk.initialize(r, fixed=fixed), dk.initialize(rd, fixed=fixed)
     print(f"daekit's form: x = {r.x_names}, z = {r.z_names}")
+    if "--sweep" in sys.argv:
+        sweep(r, rd, init, initd, quick)
+        return
     grids = (21, 201, 2001) if quick else (21, 201, 2001, 20001)
     cases = [("daekit plain", r, init, None), ("daekit projection", r, init, "projection"),
              ("dummy derivatives", rd, initd, "dummy_derivatives")]
@@ -130,43 +136,86 @@ def part1(quick: bool) -> None:
                 print(f"{n:>7} {label:<18} {1e3 * best[label]:>8.2f} {best[label] / th:>7.2f} "
                       f"{1e3 * CPU[label]:>7.2f} {CPU[label] / ch:>7.2f} "
                       f"{tr.stats['steps']:>7} {e:>12.2e} {rod:>10.1e} {ev:>7}")
-    sweep(r, init)
+    sweep(r, rd, init, initd, quick)
 
 
-def sweep(r, init) -> None:
-    """IDAS's step count is not a smooth function of the tolerance: rounding differences
-    between two equal forms of the same equations move its step-size and order decisions, and
-    at one tolerance the two forms can be 20 % apart. Over 9 tolerances around 1e-8 the
-    totals compare the forms, not the luck of one tolerance."""
-    t = np.linspace(0.0, T_END, 21)
-    Fr, x0, z0 = hand_integrator(t, 1e-12)
-    ref = run_hand(Fr, x0, z0)[0][:, :3]
-    tols = np.geomspace(5e-9, 2e-8, 9)
-    print("\nstep counts around rtol = atol = 1e-8 (21 points; the same equations, by hand and "
-          "by daekit)")
-    print(f"{'rtol':>9} {'hand steps':>10} {'daekit steps':>12} {'hand err':>9} "
-          f"{'daekit err':>10} {'hand ms':>8} {'daekit ms':>9} {'hand cpu':>8} {'daekit cpu':>10}")
-    tot = np.zeros(6)
-    for tol in tols:
-        F, x0, z0 = hand_integrator(t, tol)
-        def go(tol=tol):
-            traj = dk.simulate(r, t, init, rtol=tol, atol=tol)
-            return traj, traj["p"]
+def sweep(r, rd, init, initd, quick: bool) -> None:
+    """All three methods against the hand form at 13 tolerances, 1e-4 .. 1e-10 (half decades),
+    on 21 and 2001 output points: IDAS steps, CPU-time ratios (best of ``REPEAT`` interleaved
+    rounds, both sides in the same run), the largest position error against the hand form at
+    rtol 1e-12; the totals over the tolerances compare the forms, not the luck of one
+    tolerance (see :func:`lottery`)."""
+    tols = np.geomspace(1e-4, 1e-10, 7 if quick else 13)
+    cases = [("plain", r, init, None), ("projection", r, init, "projection"),
+             ("dummy derivatives", rd, initd, "dummy_derivatives")]
+    for n in (21, 2001):
+        t = np.linspace(0.0, T_END, n)
+        Fr, x0, z0 = hand_integrator(t, 1e-12)
+        ref = run_hand(Fr, x0, z0)[0][:, :3]
+        print(f"\ntolerance sweep, {n} output points: steps, CPU time / hand's (same run), max "
+              "position error")
+        print(f"{'rtol':>8} | {'hand':>5} {'ms':>5} {'err':>7} | " + " | ".join(
+            f"{lab[:10]:>10} {'x hand':>6} {'err':>7}" for lab, *_ in cases))
+        tot = {k: np.zeros(2) for k in ["hand"] + [c[0] for c in cases]}
+        logs = {c[0]: [] for c in cases}
+        for tol in tols:
+            F, x0, z0 = hand_integrator(t, tol)
+            fns = {"hand": lambda F=F, x0=x0, z0=z0: run_hand(F, x0, z0)}
+            for label, rr, ii, stab in cases:
+                def go(rr=rr, ii=ii, stab=stab, t=t, tol=tol):
+                    tr = dk.simulate(rr, t, ii, rtol=tol, atol=tol, stabilization=stab)
+                    return tr, tr["p"]
 
-        fns = {"hand": lambda F=F, x0=x0, z0=z0: run_hand(F, x0, z0), "daekit": go}
-        fns["daekit"]()
-        best, out = interleaved(fns, REPEAT)
-        (Xh, sh), (tr, P) = out["hand"], out["daekit"]
-        eh, ed = np.max(np.abs(Xh[:, :3] - ref)), np.max(np.abs(P - ref))
-        tot += [sh, tr.stats["steps"], best["hand"], best["daekit"], CPU["hand"], CPU["daekit"]]
-        print(f"{tol:>9.2e} {sh:>10} {tr.stats['steps']:>12} {eh:>9.1e} {ed:>10.1e} "
-              f"{1e3 * best['hand']:>8.2f} {1e3 * best['daekit']:>9.2f} "
-              f"{1e3 * CPU['hand']:>8.2f} {1e3 * CPU['daekit']:>10.2f}")
-    print(f"{'total':>9} {int(tot[0]):>10} {int(tot[1]):>12} {'':>9} {'':>10} "
-          f"{1e3 * tot[2]:>8.1f} {1e3 * tot[3]:>9.1f} {1e3 * tot[4]:>8.1f} {1e3 * tot[5]:>10.1f}")
-    print(f"daekit / hand over the 9 tolerances: steps {tot[1] / tot[0]:.3f}, wall time "
-          f"{tot[3] / tot[2]:.2f}, CPU time {tot[5] / tot[4]:.2f}")
+                go()
+                fns[label] = go
+            _, out = interleaved(fns, REPEAT)
+            Xh, sh = out["hand"]
+            eh = np.max(np.abs(Xh[:, :3] - ref))
+            tot["hand"] += [sh, CPU["hand"]]
+            cells = []
+            for label, *_ in cases:
+                tr, P = out[label]
+                st = tr.stats["steps"]
+                tot[label] += [st, CPU[label]]
+                logs[label].append(np.log(CPU[label] / CPU["hand"]))
+                cells.append(f"{st:>10} {CPU[label] / CPU['hand']:>6.2f} "
+                             f"{np.max(np.abs(P - ref)):>7.1e}")
+            print(f"{tol:>8.1e} | {sh:>5} {1e3 * CPU['hand']:>5.2f} {eh:>7.1e} | "
+                  + " | ".join(cells))
+        print(f"{'total':>8} | {int(tot['hand'][0]):>5} {1e3 * tot['hand'][1]:>5.1f} "
+              f"{'':>7} | " + " | ".join(
+                  f"{int(tot[lab][0]):>10} {tot[lab][1] / tot['hand'][1]:>6.2f} {'':>7}"
+                  for lab, *_ in cases))
+        print("over the tolerances: " + "; ".join(
+            f"{lab}: steps {tot[lab][0] / tot['hand'][0]:.3f}x the hand form's, CPU time "
+            f"{tot[lab][1] / tot['hand'][1]:.2f}x in total, geometric mean of the ratios "
+            f"{np.exp(np.mean(logs[lab])):.2f}x, largest {np.exp(np.max(logs[lab])):.2f}x"
+            for lab, *_ in cases))
+    lottery(r)
     same_equations(r)
+
+
+def lottery(r, draws: int = 40) -> None:
+    """IDAS's step count at one tolerance is not a smooth function of its inputs: the same run
+    from starts that differ by one part in 1e15 (``x0 (1 + 1e-15 N(0, 1))``, ``z0`` consistent)
+    takes different numbers of steps, by up to 30 % at rtol 1e-8 for the hand form itself. Over
+    ``draws`` such starts the means compare the two forms; the unperturbed start is one draw."""
+    t = np.linspace(0.0, T_END, 21)
+    print(f"\nsteps from {draws} starts perturbed by 1e-15 relative (21 points; hand = raw "
+          "IDAS on the hand form, daekit = plain simulate)")
+    print(f"{'rtol':>8} {'hand mean':>10} {'min':>5} {'max':>5} {'daekit mean':>12} {'min':>5} "
+          f"{'max':>5} {'ratio of means':>15}")
+    for tol in (1e-6, 1e-7, 1e-8, 1e-9):
+        F, x0, z0 = hand_integrator(t, tol)
+        rng = np.random.default_rng(1)
+        sh, sd = [], []
+        for k in range(draws):
+            x = x0 * (1 + 1e-15 * rng.standard_normal(6)) if k else x0.copy()
+            z = np.array([(x[3:] @ x[3:] - G * x[2]) / (x[:3] @ x[:3])])
+            sh.append(run_hand(F, x, z)[1])
+            sd.append(dk.simulate(r, t, np.r_[x, z], rtol=tol, atol=tol).stats["steps"])
+        print(f"{tol:>8.0e} {np.mean(sh):>10.1f} {min(sh):>5} {max(sh):>5} {np.mean(sd):>12.1f} "
+              f"{min(sd):>5} {max(sd):>5} {np.mean(sd) / np.mean(sh):>15.3f}")
 
 
 def same_equations(r) -> None:
@@ -224,7 +273,8 @@ def main() -> None:
     quick = "--quick" in sys.argv
     if "--chain" not in sys.argv:
         part1(quick)
-    part2(quick)
+    if "--sweep" not in sys.argv:
+        part2(quick)
 
 
 if __name__ == "__main__":

@@ -401,3 +401,43 @@ def test_dummy_derivative_system_always_reselects():
     for stab in (None, "dummy_derivatives"):
         tr = dk.simulate(rd, t, iv, rtol=1e-8, atol=1e-8, stabilization=stab)
         assert np.max(np.abs(tr["x"] - ref["x"])) < 1e-4, stab
+
+
+def test_statistics_are_those_of_the_run():
+    """Every statistic counts the run it is reported with: a second identical call (the same
+    reused integrator) reports the same numbers (the Jacobian evaluations used to be CasADi's
+    lifetime count of the reused integrator's Jacobian calls, growing call after call), and
+    the plain run's counts satisfy IDAS's own relations."""
+    r = reduce_index(dk.examples.pendulum_planar())
+    iv = dk.initialize(r, fixed={"x": 1.0, "der(x)": 0.0}, guess={"y": 0.0, "der(y)": 0.0})
+    t = np.linspace(0.0, 5.0, 11)
+    keys = ("steps", "residual_evaluations", "jacobian_evaluations", "error_test_failures",
+            "newton_failures")
+    runs = [dk.simulate(r, t, iv, rtol=1e-8, atol=1e-8).stats for _ in range(3)]
+    assert all({k: s[k] for k in keys} == {k: runs[0][k] for k in keys} for s in runs)
+    st = runs[0]
+    assert 0 < st["jacobian_evaluations"] < st["steps"] < st["residual_evaluations"]
+
+
+def test_options_with_one_value_per_unknown_are_checked_against_the_system():
+    """``abstolv`` of the wrong length used to abort the process (CasADi does not check it and
+    SUNDIALS wrote past the vector: "free(): invalid next size", found on the 3D pendulum's
+    dummy-derivative system); now a daekit error names the option, the unknowns in order and
+    the lengths. With the right length it runs and matches the scalar ``atol`` run; dummy
+    derivatives, whose unknowns change at each re-selection, refuse such options."""
+    r = reduce_index(dk.examples.pendulum_planar())
+    iv = dk.initialize(r, fixed={"x": 1.0, "der(x)": 0.0}, guess={"y": 0.0, "der(y)": 0.0})
+    t = np.linspace(0.0, 1.0, 5)
+    n = r.nx + r.nz
+    same = dk.simulate(r, t, iv, rtol=1e-8, atol=1e-8, abstolv=[1e-8] * n)
+    ref = dk.simulate(r, t, iv, rtol=1e-8, atol=1e-8)
+    assert same.stats["steps"] == ref.stats["steps"]
+    assert np.array_equal(same["x"], ref["x"])
+    with pytest.raises(InputError, match=r"abstolv needs one value per unknown.*'T'.*\(5\); got 3"):
+        dk.simulate(r, t, iv, abstolv=[1e-8] * 3)
+    with pytest.raises(InputError, match="init_xdot needs one value per unknown"):
+        dk.simulate(r, t, iv, init_xdot=[0.0] * n)
+    rd = reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    ivd = dk.initialize(rd, 0.0, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
+    with pytest.raises(InputError, match="dummy derivatives change the unknowns"):
+        dk.simulate(rd, t, ivd, abstolv=[1e-8] * (rd.nx + rd.nz))

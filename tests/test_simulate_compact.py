@@ -41,8 +41,9 @@ def pendulum3d():
 
 def test_compact_dummy_form_is_the_lecture_size_and_as_exact(pendulum3d, monkeypatch):
     """The 3D pendulum's dummy-derivative system has 12 algebraic unknowns; its compact form
-    has 3 (z and the two dummies), integrates in far fewer steps than the full form at rtol
-    1e-8 (1838 against 3354), conserves energy at least as well as the plain index-1 form and
+    has 3 (z and the two dummies), integrates in fewer steps than the full form at rtol 1e-8
+    (940 against 1180; with the algebraic unknowns in IDAS's error test 1838 against 3354),
+    conserves energy at least as well as the plain index-1 form and
     the angular momentum about the vertical to the tolerance's order (exact invariants)."""
     import importlib
 
@@ -58,7 +59,14 @@ def test_compact_dummy_form_is_the_lecture_size_and_as_exact(pendulum3d, monkeyp
                             point={"p": P0, "v": V0})
     full = dk.simulate(rfull, t, dk.initialize(rfull, fixed={"p": P0, "v": V0}), rtol=1e-8,
                        atol=1e-8, stabilization="dummy_derivatives")
-    assert dd.stats["steps"] <= 0.7 * full.stats["steps"]
+    assert dd.stats["steps"] <= full.stats["steps"]  # (940 against 1180)
+    # with the algebraic unknowns in IDAS's error test the compaction matters more
+    dd_all = dk.simulate(rd, t, initd, rtol=1e-8, atol=1e-8, stabilization="dummy_derivatives",
+                         suppress_algebraic=False)
+    full_all = dk.simulate(rfull, t, dk.initialize(rfull, fixed={"p": P0, "v": V0}),
+                           rtol=1e-8, atol=1e-8, stabilization="dummy_derivatives",
+                           suppress_algebraic=False)
+    assert dd_all.stats["steps"] <= 0.7 * full_all.stats["steps"]  # (1838 against 3354)
     (e_dd, lz_dd), (e_plain, _) = _conserved(dd), _conserved(plain)
     assert np.max(np.abs(e_dd - e_dd[0])) <= np.max(np.abs(e_plain - e_plain[0]))
     assert np.max(np.abs(lz_dd - lz_dd[0])) < 2e-6  # an exact invariant, at rtol 1e-8

@@ -172,7 +172,8 @@ def _remedy_costs(rows: list[RemedyResult]) -> str:
                "controlled)",
         "dummy derivatives": "IDAS restarted at each re-selection of the states (when the "
                              "pivot degrades), one integrator per "
-                             "selection, the explicitly given derivatives substituted",
+                             "selection, the explicitly given derivatives substituted, "
+                             "IDAS's error test on the selected states only",
         "RATTLE": "a fixed-step symplectic method: cost set by h, not by a tolerance",
     }
     lines = ["What each remedy cost here (relative to no remedy on the same system):"]

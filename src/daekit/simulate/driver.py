@@ -342,7 +342,7 @@ class Driver:
             # against 1337 over 200 samples); it stays the fallback (the slider crank)
             tries.append((budget, False))
         tries.append((budget, True))
-        if "suppress_algebraic" not in system.options:
+        if system.options.get("suppress_algebraic", True):  # (not if the user said False)
             tries.append(({**budget, "suppress_algebraic": True,
                            "step0": 1e-12 * max(1.0, self.span)}, True))
         if not user_budget and not self.monitors:

@@ -47,7 +47,7 @@ from .vectorized import evaluate_columns, evaluate_rows, fast_call
 
 __all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of", "evaluator_of",
-           "StateColumns"]
+           "StateColumns", "check_sized_options", "SIZED_OPTIONS"]
 
 _IDA_REASONS = {
     "IDA_CONV_FAIL": "the Newton iteration failed to converge repeatedly (the algebraic "
@@ -111,14 +111,17 @@ def to_scipy(M: ca.DM) -> sp.csc_matrix:
 def stats_of(raw: Mapping | None) -> dict:
     """daekit's statistics names from CasADi's integrator statistics.
 
-    >>> stats_of({"nsteps": 3})["steps"]
-    3
+    >>> st = stats_of({"nsteps": 3, "nlinsetups": 2})
+    >>> st["steps"], st["jacobian_evaluations"]
+    (3, 2)
     """
     s = raw or {}
     return {
         "steps": int(s.get("nsteps", 0)),
         "residual_evaluations": int(s.get("nfevals", 0)),
-        "jacobian_evaluations": int(s.get("n_call_jacF", 0)),
+        # (IDAS's Jacobian setups of this run: CasADi's n_call_jacF counts every call of the
+        # integrator's Jacobian function since it was made, over all runs of a reused one)
+        "jacobian_evaluations": int(s.get("nlinsetups", 0)),
         "error_test_failures": int(s.get("netfails", 0)),
         "newton_failures": int(s.get("nncfails", 0)),
     }
@@ -628,6 +631,50 @@ def _sparse_solve(A: sp.csc_matrix, b: np.ndarray) -> np.ndarray:
 EVENT_KEYWORDS = ("event_spacing", "zeno_count", "zeno_window", "max_events", "use_driver")
 
 
+#: IDAS options with one value per unknown: ``{name: which unknowns}`` ("xz": the states then
+#: the algebraic unknowns, "x": the states)
+SIZED_OPTIONS = {"abstolv": "xz", "constraints": "xz", "init_xdot": "x"}
+
+
+def check_sized_options(r, options: Mapping, reselects: bool = False) -> None:
+    """Raise :class:`~daekit.inputs.InputError` unless every IDAS option with one value per
+    unknown (``abstolv``, ``constraints``, ``init_xdot``) has one for each unknown of ``r``
+    (CasADi does not check ``abstolv``: a wrong length corrupts memory). ``reselects``: the
+    system changes its unknowns during the run (dummy derivatives), so such options cannot
+    apply.
+
+    >>> import casadi as ca, numpy as np
+    >>> from daekit.reduced import ReducedDAE
+    >>> t = ca.SX.sym("t"); x = ca.SX.sym("x"); z = ca.SX.sym("z")
+    >>> r = ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), -z, z - x, ca.SX(0, 1), [], ["x"],
+    ...     ["z"], [], [], np.zeros(0), {"x": x, "z": z})
+    >>> check_sized_options(r, {"abstolv": [1e-8, 1e-6]})
+    >>> try:
+    ...     check_sized_options(r, {"abstolv": [1e-8]})
+    ... except ValueError as err:
+    ...     print(str(err)[:86])
+    simulate: abstolv needs one value per unknown, in this order: ['x', 'z'] (2); got 1
+    """
+    for name, which in SIZED_OPTIONS.items():
+        if name not in options:
+            continue
+        if reselects:
+            raise InputError(
+                f"simulate: {name} gives one value per unknown, but dummy derivatives change "
+                f"the unknowns at every re-selection of the states; use atol= and rtol= (or "
+                f"another stabilization)")
+        names = list(r.x_names) + (list(r.z_names) if which == "xz" else [])
+        try:
+            n = len(options[name])
+        except TypeError:
+            n = -1
+        if n != len(names):
+            raise InputError(
+                f"simulate: {name} needs one value per unknown, in this order: {names[:20]}"
+                f"{' ...' if len(names) > 20 else ''} ({len(names)}); got "
+                f"{n if n >= 0 else type(options[name]).__name__}")
+
+
 def check_idas_options(options: Mapping) -> None:
     """Raise :class:`~daekit.inputs.InputError` naming the first keyword of ``options`` that
     CasADi's IDAS does not take (or takes with another type), before any work is done: a
@@ -641,6 +688,10 @@ def check_idas_options(options: Mapping) -> None:
     simulate: 'max_num_stepz' is not an option of CasADi's IDAS integrator. Did you mean 'max_
     """
     opts = {k: v for k, v in options.items() if k not in EVENT_KEYWORDS}
+    # (options with one value per unknown are checked against the system itself, see
+    # check_sized_options: on the trivial system a wrong length is no error, and an abstolv
+    # of the wrong length corrupts SUNDIALS' memory: the process aborts)
+    opts = {k: v for k, v in opts.items() if k not in SIZED_OPTIONS}
     if not opts:
         return
     x = ca.SX.sym("x")

@@ -318,7 +318,7 @@ class _SystemCache:
         self.sym_hash = np.full(nv, -2, dtype=np.int64)
         self.w_pos = np.full(nv, -1, dtype=np.int64)
         self.elems: dict[int, ca.SX] = {}
-        self._pos_of = None  # the elements of w, split on first use
+        self._w_elems = None  # the elements of w, split on first use
         self.settle = {}
         self.hess: dict = {}
         self.zdep = None
@@ -354,9 +354,9 @@ class _SystemCache:
             if one.size and ca.is_equal(part[one.tolist()], self.w[col[one].tolist()], 0):
                 is_w[one] = True
         if is_w.any():
-            if self._pos_of is None:
-                self._pos_of = ca.vertsplit(self.w)
-            ws = self._pos_of
+            if self._w_elems is None:
+                self._w_elems = ca.vertsplit(self.w)
+            ws = self._w_elems
             for i, k in zip(todo[is_w].tolist(), col[is_w].tolist(), strict=True):
                 self.sym_hash[i] = ws[k].element_hash()
                 self.w_pos[i] = k
@@ -1081,22 +1081,31 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
     fixed ``x``
     (Newton with SuperLU or dense LU on ``d alg / d z``; one step when ``alg`` is affine in
     ``z``, as for mechanical systems). Where ``d alg / d z`` is singular or Newton does not
-    converge, ``w`` is returned unchanged (the joint step stands). ``alg`` and ``d alg / dz``
-    come from the system's ``core_fun`` (no CasADi function of their own: at 20,000 links
-    making one cost more than evaluating the invariants beside them at every settle)."""
+    converge, ``w`` is returned unchanged (the joint step stands). Small (dense) systems take
+    ``alg`` and ``d alg / dz`` from the system's ``core_fun`` (one CasADi function fewer to
+    make; evaluating the invariants beside them costs microseconds); big ones have a function
+    of their own (evaluating a 1000-link chain's invariants at every settle cost a repeated
+    initialization 7 % more than making the function once)."""
     zs = sc.w[nx:]
     affine = not ca.depends_on(sc.Jz, zs)
     n_alg = int(sc.alg.numel())
-    # d alg / dz: the columns nx: of d alg / dw, contiguous in its CCS order
-    colind, row, shape, _ = _ccs(sc.jacobians["alg"].sparsity())
-    start = int(colind[nx])
-    z_colind = colind[nx:] - start
-    ccs = (z_colind, row[start:], (shape[0], shape[1] - nx),
-           np.repeat(np.arange(shape[1] - nx, dtype=np.int64), np.diff(z_colind)))
+    if sparse:
+        own = FastFunction(ca.Function("alg_z", list(sc.args), [sc.alg, sc.Jz]))
+        ccs = _ccs(own.f.sparsity_out(1))
 
-    def afun(wv, *vals):
-        c, Ja, *_ = sc.core_fun(wv, *vals)
-        return c[:n_alg], Ja[start:]
+        def afun(wv, *vals):
+            return own(wv, *vals)
+    else:
+        # d alg / dz: the columns nx: of d alg / dw, contiguous in its CCS order
+        colind, row, shape, _ = _ccs(sc.jacobians["alg"].sparsity())
+        start = int(colind[nx])
+        z_colind = colind[nx:] - start
+        ccs = (z_colind, row[start:], (shape[0], shape[1] - nx),
+               np.repeat(np.arange(shape[1] - nx, dtype=np.int64), np.diff(z_colind)))
+
+        def afun(wv, *vals):
+            c, Ja, *_ = sc.core_fun(wv, *vals)
+            return c[:n_alg], Ja[start:]
     count = 1 if affine else iters
     scalar = not sparse and int(zs.numel()) == 1 and n_alg == 1
 

@@ -66,3 +66,25 @@ def test_distance_criterion_is_relative_per_unknown():
     w, st = gauss_newton(fun, np.array([3.5 * s, 5.0]))
     assert st.consistent
     assert abs(w[0] / s - 3.0) <= 1e-7 and abs(w[1] - 2.0) < 1e-10
+
+
+@pytest.mark.parametrize("k", [1e-9, 1e-6, 1.0, 1e6, 1e9])
+def test_multiple_root_in_any_unit(k):
+    # (x - 1)^2 with x = k y: the same problem in another unit of the unknown; accepted only
+    # where y is within the distance of its root 1 / k, relative to y (an absolute floor of 1
+    # in the equilibrated units accepted y 1.2e-4 off its root for k = 1e9)
+    fun = lambda w: (np.array([(k * w[0] - 1.0) ** 2]),  # noqa: E731
+                     sp.csr_matrix([[2 * k * (k * w[0] - 1.0)]]))
+    w, st = gauss_newton(fun, np.array([1.5 / k]))
+    assert st.consistent
+    assert abs(k * w[0] - 1.0) <= 10 * POINT_DIST
+
+
+@pytest.mark.parametrize("k", [1e-6, 1e-3, 1.0, 1e3, 1e6])
+def test_no_real_root_in_any_unit(k):
+    # x^2 + 1e-14 has no real root: refused in every unit of x = k y (it was accepted for
+    # k = 1e3 and 1e6, with 1000 times the least residual left)
+    fun = lambda w: (np.array([(k * w[0]) ** 2 + 1e-14]),  # noqa: E731
+                     sp.csr_matrix([[2 * k * k * w[0]]]))
+    _, st = gauss_newton(fun, np.array([1.0 / k]))
+    assert not st.consistent

@@ -437,6 +437,9 @@ def test_options_with_one_value_per_unknown_are_checked_against_the_system():
         dk.simulate(r, t, iv, abstolv=[1e-8] * 3)
     with pytest.raises(InputError, match="init_xdot needs one value per unknown"):
         dk.simulate(r, t, iv, init_xdot=[0.0] * n)
+    # the right number of values in the wrong shape (CasADi's own error named no option)
+    with pytest.raises(InputError, match=r"abstolv needs one value.*an array of shape \(5, 2\)"):
+        dk.simulate(r, t, iv, abstolv=np.full((n, 2), 1e-8))
     rd = reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
     ivd = dk.initialize(rd, 0.0, fixed={"x": 1.0, "y": 0.0, "der(x)": 0.0})
     with pytest.raises(InputError, match="dummy derivatives change the unknowns"):

@@ -150,3 +150,23 @@ def test_sparse_minimum_norm_step_is_the_pseudoinverse_solution(kind):
     assert np.linalg.norm(got - want) <= 1e-10 * np.linalg.norm(want)
     if kind == "band":
         assert points._band_solver((J @ J.T).tocsc(), 1e-12) is not None
+
+
+def test_min_norm_step_with_a_dense_column_skips_the_normal_equations():
+    # one unknown in every row (a shared parameter-like column) fills J J^T completely: the step
+    # comes from the augmented system without forming it, still the pseudoinverse solution
+    import scipy.sparse as sp
+
+    from daekit import points
+
+    rng = np.random.default_rng(3)
+    m = 400
+    rows = np.repeat(np.arange(m), 2)
+    cols = np.repeat(np.arange(m), 2) + np.tile([0, 1], m)
+    vals = np.tile([3.0, 0.5], m) * rng.uniform(0.8, 1.2, rows.size)  # well conditioned
+    J = sp.hstack([sp.csc_matrix((vals, (rows, cols)), shape=(m, m + 1)),
+                   sp.csc_matrix(rng.normal(size=(m, 1)))]).tocsc()
+    h = rng.normal(size=m)
+    d = points._min_norm_step(J, h)
+    ref = -np.linalg.pinv(J.toarray()) @ h
+    assert np.linalg.norm(d - ref) <= 1e-10 * np.linalg.norm(ref)

@@ -57,8 +57,9 @@ DENSE_UNKNOWNS = 300
 POINT_TOL = 1e-10
 #: Where the residual test cannot be met (a multiple root: ``h = x^2`` has a residual half
 #: its row's terms at every iterate; rounding in a row whose terms nearly cancel), the
-#: predicted remaining distance to the solution, per unknown and relative to ``1 + |w_j|``
-#: (in the equilibrated units), that makes a converging Gauss--Newton iteration consistent.
+#: predicted remaining distance to the solution, per unknown and relative to the larger of
+#: ``|w_j|`` and its start's value, that makes a converging Gauss--Newton iteration
+#: consistent.
 POINT_DIST = 1e-8
 #: Largest ratio of successive steps taken as linear convergence (a root of multiplicity
 #: ``m`` contracts by ``(m - 1) / m``: up to ``m = 10``).
@@ -477,11 +478,12 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
       ``sum_j |J_ij w_j|`` (``tol`` where they are all zero), or
     * the iteration converges to a zero that this test cannot see, a multiple root
       (``h = x^2``: the residual stays half the row's terms) or rounding in a row whose
-      terms cancel: the last two steps were full steps, the step shrank
+      terms cancel: the previous step was a full step, the step shrank
       (``q = |d_k| / |d_{k-1}| <= LINEAR_RATE``), it removes the residual to first order
       (``|h + J d| <= |h| / 2``: not a stationary point of ``|h|`` with ``h != 0``), and the
       distance to the limit it predicts, ``|d_j| / (1 - q)``, is below ``POINT_DIST`` times
-      ``1 + |w_j|`` for every unknown (equilibrated units).
+      the larger of ``|w_j|`` and its start's value for every unknown (so that the test is
+      the same in any units).
 
     >>> import numpy as np, scipy.sparse as sp
     >>> fun = lambda w: (np.array([w[0]**2 + w[1]**2 - 1]), sp.csr_matrix([[2*w[0], 2*w[1]]]))
@@ -564,6 +566,14 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
 
     r = merit(h)
     radius = 2.0 * (1.0 + float(np.max(np.abs(w / dc)))) if n else 1.0
+    # the sizes the predicted distance to the limit is measured against: each unknown's own
+    # value or its start's, whichever is larger (both scale with the unknown's unit; an
+    # absolute floor of 1 did not: (x - 1)^2 with x in units of 1e-9 was accepted 1e-4 off),
+    # the largest start where an unknown starts and stays at 0
+    start_size = np.abs(w * inv_dc)
+    if n:
+        start_size = np.where(start_size > 0, start_size,
+                              float(start_size.max()) if start_size.max() > 0 else 1.0)
     full_steps, last_size = 0, 0.0  # full steps taken in a row, the size of the last step
     for it in range(max_iter + 1):
         if it:
@@ -613,7 +623,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
         if full_steps >= 1 and last_size > 0:
             q = size / last_size
             if q <= LINEAR_RATE and _norm(dr * h + Js @ d) <= 0.5 * _norm(dr * h):
-                ahead = np.abs(d) / (1.0 - q) / (1.0 + np.abs(w * inv_dc))
+                ahead = np.abs(d) / (1.0 - q) / np.maximum(np.abs(w * inv_dc), start_size)
                 if np.all(ahead <= POINT_DIST):
                     # converging to a zero the residual test does not see (see above):
                     # the step taken where it does not raise the residual
@@ -773,8 +783,12 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     # as J (chains, meshes: a symmetric positive definite matrix a fifth of the KKT system's
     # size, factorized in a quarter of its time, 200-link chain); else (a column shared by
     # many rows fills J J^T) the augmented system below
-    JJ = (J @ J.T).tocsc()
-    if JJ.nnz <= 2 * J.nnz + m:
+    # (a column of c entries alone puts a dense c-by-c block into J J^T: where that block is
+    # over the limit, J J^T is not formed at all; one unknown in every row of a 20,000-row J
+    # would have made it 4e8 entries)
+    widest = int(np.diff(J.indptr).max(initial=0))
+    JJ = (J @ J.T).tocsc() if widest * widest <= 2 * J.nnz + m else None
+    if JJ is not None and JJ.nnz <= 2 * J.nnz + m:
         band = _band_solver(JJ, mu)  # narrow band after reordering: banded Cholesky
         if band is not None:
             y = band(h)

@@ -625,6 +625,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         # any point has
         cache: dict = {}  # the functions of the iteration, made once for both points
         state["consistent"] = consistent_point(pt, arr, cache=cache).consistent
+        consistent_at[k] = state["consistent"]
         if not state["consistent"]:
             rank_at(pt)  # as it is (pt.status says it is not consistent)
             return r_all, r_rest, fulls
@@ -641,6 +642,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         return r_all, r_rest, fulls
 
     tested: dict[int, tuple] = {}  # the top level's test, when made first (not twice)
+    consistent_at: dict[int, bool] = {}  # whether each level's ranks came from consistent points
     if top_first and soft and max_index > 0:
         for k in range(1, max_index + 1):
             if too_long(k):
@@ -667,6 +669,12 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         r_all, r_rest, fulls = tested.pop(k) if k in tested else test(k)
         ranks.append((k, r_all, r_rest))
         if r_all - r_rest == n:
+            if soft and not consistent_at.get(k, True):
+                # determined at a point off the solutions: ranks there decide nothing (they
+                # could lower the index wrongly), so the index stays unconfirmed
+                why["unknown"] = (f"no consistent point of its derivative array at level {k} "
+                                  "was found")
+                return None
             r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0
             constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
@@ -739,9 +747,11 @@ class Analysis:
         ``index``, ``dof`` and ``structurally_ok`` may not hold on the solutions; None where
         a random point was used by choice (``consistent=False``, or a large model).
     index_unconfirmed : list of (list of str, int, str)
-        The parts whose structural index was not checked against the derivative array
-        ``(equations, structural index, why)``; where this is not empty, ``index`` is only an
-        upper bound of the differential index (empty: ``index`` is the differential index).
+        The part whose structural index could not be checked against the derivative array
+        ``(equations, structural index, why)``: at most one entry, as the check stops at the
+        first part of the highest index it cannot confirm; where this is not empty, ``index``
+        is only an upper bound of the differential index (empty: ``index`` is the differential
+        index).
     """
 
     model_name: str

@@ -73,7 +73,9 @@ def explain(a: Any) -> str:
     unconfirmed = getattr(a, "index_unconfirmed", [])
     if a.structurally_ok:
         head = (f"the system Jacobian is nonsingular at the test point (reciprocal condition "
-                f"{a.jacobian_rcond:.1e}), so the structural DOF is the true one")
+                f"{a.jacobian_rcond:.1e}), so the structural DOF is the true one"
+                + (" (if that holds on the solutions too: no consistent test point was found)"
+                   if getattr(a, "points_consistent", True) is False else ""))
         if unconfirmed:
             lines.append(
                 f"Differential index at most {a.index}, from structural analysis (Pryce's "

@@ -665,14 +665,21 @@ def check_sized_options(r, options: Mapping, reselects: bool = False) -> None:
                 f"another stabilization)")
         names = list(r.x_names) + (list(r.z_names) if which == "xz" else [])
         try:
-            n = len(options[name])
-        except TypeError:
+            values = np.asarray(options[name], dtype=float)
+            n = values.size if values.ndim == 1 else -1
+        except (TypeError, ValueError):
             n = -1
         if n != len(names):
             raise InputError(
                 f"simulate: {name} needs one value per unknown, in this order: {names[:20]}"
                 f"{' ...' if len(names) > 20 else ''} ({len(names)}); got "
-                f"{n if n >= 0 else type(options[name]).__name__}")
+                f"{n if n >= 0 else _described(options[name])}")
+
+
+def _described(value) -> str:
+    """What a sized option was given instead of a vector: an array's shape, else its type."""
+    shape = getattr(value, "shape", None)
+    return f"an array of shape {tuple(shape)}" if shape is not None else type(value).__name__
 
 
 def check_idas_options(options: Mapping) -> None:

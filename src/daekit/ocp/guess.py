@@ -38,7 +38,7 @@ import numpy as np
 from ..errors import OCPError
 from .nlp import quiet
 
-__all__ = ["Guess", "make_guess"]
+__all__ = ["Guess", "make_guess", "consistent_end"]
 
 
 @dataclass
@@ -184,7 +184,7 @@ def make_guess(prob, guess) -> Guess:
     if failed is not None:
         tf = failed[0]
         i0 = next(i for i, t in enumerate(ts) if t > tf)
-        xe, ze, ok = _consistent_end(prob, Xs[i0 - 1], Zs[i0 - 1], Ws[-1], p, T)
+        xe, ze, ok = consistent_end(prob, Xs[i0 - 1], Zs[i0 - 1], Ws[-1], p, T)
         if ok:
             for i in range(i0, len(ts)):
                 s_ = (ts[i] - tf) / (T - tf)
@@ -197,7 +197,7 @@ def make_guess(prob, guess) -> Guess:
     else:
         miss = _final_miss(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
         if miss > 1e-3:
-            xe, ze, ok = _consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
+            xe, ze, ok = consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
             # on the interval boundaries (and the ends), interpolated in between
             # (at most BLEND_NODES of them: a guess needs no finer path)
             step = tau.size * max(1, int(np.ceil(N / (BLEND_NODES - 1))))
@@ -529,13 +529,43 @@ class _GuessSimulator:
         raise err if err is not None else RuntimeError("integration failed")
 
 
-def _consistent_end(prob, x, z, w, p, T):
+def _given_final_values(prob, x, z):
+    """``(x, z)`` with every state or algebraic unknown that a final condition fixes by name
+    (``final s = 0``) set to its value."""
+    a = prob.aug
+    x, z = np.array(x, float), np.array(z, float)
+    for c in prob.conditions:
+        w = a.which(c.expr) if c.kind == "final" else None
+        if w is not None and w[0] in ("x", "z"):
+            (x if w[0] == "x" else z)[w[1]] = c.value
+    return x, z
+
+
+def consistent_end(prob, x, z, w, p, T):
     """The point nearest ``(x, z)`` (Gauss-Newton, least-norm steps) where the algebraic
     equations, the invariants and the final conditions hold at ``t = T``; ``ok`` is False when
-    they cannot be met (the caller then holds the state constant)."""
+    they cannot be met (the caller then holds the state constant).
+
+    The projection starts with the variables that a final condition fixes by name at their
+    values (:func:`_given_final_values`). From the simulation's end alone it could start at a
+    symmetric point: the cart-pole hanging exactly below its pivot, projected onto
+    ``p[1] = L``, has no gradient towards either side (the circle's tangent there is
+    horizontal), so Gauss-Newton stalled or left the side to roundoff and converged only
+    linearly to a degenerate root (a final point 1e-3 off the upright one). Set to the given
+    ``s = 0, p[1] = L`` first, the upright point holds exactly from the start.
+
+    >>> import numpy as np
+    >>> from daekit.examples.ocp_examples import cartpole_ocp
+    >>> prob = cartpole_ocp(final_all=False).compile(); a = prob.aug
+    >>> hanging = np.where(np.array(a.x_names) == "p[1]", -0.5, 0.0)
+    >>> xe, ze, ok = consistent_end(prob, hanging, [0.0], [0.0], prob.p_guess(), 2.0)
+    >>> ok, np.round(xe, 12).tolist(), np.round(ze, 12).tolist()   # lam = -m g / (2 L)
+    (True, [0.0, 0.0, 0.0, 0.5, 0.0, 0.0], [-2.943])
+    """
     from .consistency import as_array, project_ends
 
     a = prob.aug
+    x, z = _given_final_values(prob, x, z)
     n = a.nx + a.nz + a.nw
     v = ca.SX.sym("v", n)
     rows = prob.bc_fun(v, v, ca.DM(p), T)

@@ -195,7 +195,13 @@ def transcribe(prob, guess, T_guess: float | None = None, p_guess=None, kept=(),
         Qval = fq.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm)
         pts = _point_columns(offs, nx, nz, nw, N, d, prob.control_mode == "constant")
         G = B.G()
-        G_real, J_real = ca.Function("nlp_q", [V, Q], [G, tr.J])(V, Qval)
+        G_real = ca.Function("nlp_q", [V, Q], [G])(V, Qval)
+        # the objective reads only the integrand's row of Q: from the integrand alone at the
+        # collocation points (IPOPT evaluates it and its gradient without the dynamics)
+        fl = ca.Function("lagrange", [a.t, a.x, a.z, a.w, a.p], [prob.lagrange])
+        Qlag = ca.vertcat(ca.MX(nx + nz, M), fl.map(M)(tc, X[:, 1:], Z[:, 1:], Wc, Pm),
+                          ca.MX(nq - nx - nz - 1, M))
+        J_real = ca.Function("nlp_j", [V, Q], [tr.J])(V, Qlag)
         lin = _linear_parts(B.g, mapped, offs["x"], int(V.numel()), nx, nz, nq, N, d, C,
                             float(h), b)
         tr.derivatives = _structured_derivatives(prob, fq, V, Q, tr.J, G_real, J_real, tc, X,
@@ -335,9 +341,19 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, J_real, tc, X, Z, Wc, Pm,
     Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
     H = HV if Hp is None else HV + Hp
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
-    # the objective's gradient: the Radau weights through the per-point Jacobians, plus the
-    # Mayer term's (J is linear in Q and separable, so its V part is that at Q = 0)
+    # the objective's gradient: the Radau weights times the integrand's gradient at each point
+    # (a small SX function, mapped) summed into place, plus the Mayer term's (J is linear in
+    # Q and separable, so its V part is that at Q = 0)
     gend = ca.Function("grad_ends", [us], [ca.gradient(J_s, us)])
-    grad = ca.mtimes(D.T, lin["gJ"]) + ca.mtimes(place.T, gend(um))
+    grad = ca.mtimes(place.T, gend(um))
+    if prob.has_lagrange:
+        gl = ca.gradient(prob.lagrange, y)
+        gr = np.asarray(gl.sparsity().get_triplet()[0], int)
+        if gr.size:
+            wts = np.asarray(lin["gJ"][a.nx + a.nz::nq]).ravel()  # the weight of each point
+            A = dm_triplet(nV, gr.size * M, pts[:, gr].ravel(), np.arange(gr.size * M),
+                           np.repeat(wts, gr.size))
+            glf = ca.Function("grad_lagrange", syms, [gl[gr.tolist()]])
+            grad = grad + ca.mtimes(A, ca.vec(glf.map(M)(*args)))
     grad_f = ca.Function("nlp_grad_f", [V, p_in], [J_real, ca.densify(grad)])  # IPOPT: dense
     return {"jac_g": jac_g, "hess_lag": hess_lag, "grad_f": grad_f}

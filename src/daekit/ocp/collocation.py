@@ -341,19 +341,11 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, J_real, tc, X, Z, Wc, Pm,
     Hp = point_hessian(q, y, syms, args, ca.reshape(lq, nq, M), pts, nV)
     H = HV if Hp is None else HV + Hp
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
-    # the objective's gradient: the Radau weights times the integrand's gradient at each point
-    # (a small SX function, mapped) summed into place, plus the Mayer term's (J is linear in
-    # Q and separable, so its V part is that at Q = 0)
+    # the objective's gradient: the Radau weights through the per-point Jacobians, plus the
+    # Mayer term's (J is linear in Q and separable, so its V part is that at Q = 0; a mapped
+    # gradient of the integrand alone evaluates a little faster but costs more to build:
+    # measured on the swing, 1.2 ms more to build for 0.6 ms less in IPOPT)
     gend = ca.Function("grad_ends", [us], [ca.gradient(J_s, us)])
-    grad = ca.mtimes(place.T, gend(um))
-    if prob.has_lagrange:
-        gl = ca.gradient(prob.lagrange, y)
-        gr = np.asarray(gl.sparsity().get_triplet()[0], int)
-        if gr.size:
-            wts = np.asarray(lin["gJ"][a.nx + a.nz::nq]).ravel()  # the weight of each point
-            A = dm_triplet(nV, gr.size * M, pts[:, gr].ravel(), np.arange(gr.size * M),
-                           np.repeat(wts, gr.size))
-            glf = ca.Function("grad_lagrange", syms, [gl[gr.tolist()]])
-            grad = grad + ca.mtimes(A, ca.vec(glf.map(M)(*args)))
+    grad = ca.mtimes(D.T, lin["gJ"]) + ca.mtimes(place.T, gend(um))
     grad_f = ca.Function("nlp_grad_f", [V, p_in], [J_real, ca.densify(grad)])  # IPOPT: dense
     return {"jac_g": jac_g, "hess_lag": hess_lag, "grad_f": grad_f}

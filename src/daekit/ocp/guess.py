@@ -552,7 +552,8 @@ def consistent_end(prob, x, z, w, p, T):
     ``p[1] = L``, has no gradient towards either side (the circle's tangent there is
     horizontal), so Gauss-Newton stalled or left the side to roundoff and converged only
     linearly to a degenerate root (a final point 1e-3 off the upright one). Set to the given
-    ``s = 0, p[1] = L`` first, the upright point holds exactly from the start.
+    ``s = 0, p[1] = L`` first, the upright point holds exactly from the start. The rows are
+    those of the compiled end-point function (:attr:`~daekit.ocp.compiled.Problem.ends_fun`).
 
     >>> import numpy as np
     >>> from daekit.examples.ocp_examples import cartpole_ocp
@@ -562,25 +563,24 @@ def consistent_end(prob, x, z, w, p, T):
     >>> ok, np.round(xe, 12).tolist(), np.round(ze, 12).tolist()   # lam = -m g / (2 L)
     (True, [0.0, 0.0, 0.0, 0.5, 0.0, 0.0], [-2.943])
     """
-    from .consistency import as_array, project_ends
+    from .consistency import project_ends, rows_of
 
     a = prob.aug
     x, z = _given_final_values(prob, x, z)
     n = a.nx + a.nz + a.nw
-    v = ca.SX.sym("v", n)
-    rows = prob.bc_fun(v, v, ca.DM(p), T)
-    fin = [rows[i] for i, k in enumerate(prob.bc_kinds) if k == "final"]
-    eqs = ca.vertcat(prob.man_fun(T, v, ca.DM(p)), *fin)
-    if eqs.numel() == 0:
+    nman = int(prob.man_fun.size1_out(0))
+    # the manifold at t = T and the final conditions: rows of the compiled end-point function
+    rows = list(range(nman, 2 * nman)) + [2 * nman + i for i, k in enumerate(prob.bc_kinds)
+                                          if k == "final"]
+    if not rows:
         return x, z, False
-    F = ca.Function("end", [v], [eqs, ca.jacobian(eqs, v)])
-    nw = a.nw
+    sub = rows_of(prob.ends_fun, rows)
 
-    def fun(_v0, vT, _p, _T):  # only the final point moves; w is held at its value
-        r, J = F(vT)
-        J = as_array(J)
-        J[:, n - nw:] = 0.0
-        return as_array(r), np.hstack([np.zeros_like(J), J])
+    def fun(v0, vT, p_, T_):  # only the final point moves; w is held at its value
+        r, J = sub(v0, vT, p_, T_)
+        J[:, :n] = 0.0
+        J[:, 2 * n - a.nw:] = 0.0
+        return r, J
 
     v0 = np.concatenate([x, z, w])
     _, vT, res = project_ends(fun, v0, v0, p, T, tol=1e-9)
@@ -589,27 +589,33 @@ def consistent_end(prob, x, z, w, p, T):
     return vT[: a.nx], vT[a.nx:a.nx + a.nz], True
 
 
-def _start_by_projection(v, init_rows, man, vg, nx, lb, ub):
-    """The point where the initial conditions ``init_rows`` and the manifold rows ``man`` hold,
-    by Gauss-Newton from ``vg`` with least-norm steps in which the algebraic unknowns (the
-    entries after ``nx``) move 100 times more cheaply than the states (the weights of
+def _start_by_projection(prob, w0, p, vg, lb, ub):
+    """The point ``(x, z)`` where the initial conditions and the manifold at ``t = 0`` hold
+    (with the controls ``w0``), by Gauss-Newton from ``vg`` with least-norm steps in which the
+    algebraic unknowns move 100 times more cheaply than the states (the weights of
     :func:`_consistent_start`'s least squares); None unless all rows hold to 1e-10 (scaled)
     within the bounds ``lb, ub`` (then the least-squares problem decides). A few
-    evaluations of one small function instead of building and running an IPOPT problem."""
-    from .consistency import as_array, project_ends
+    evaluations of the compiled end-point function (its rows at ``t = 0``) instead of
+    building and running an IPOPT problem."""
+    from .consistency import project_ends, rows_of
 
-    eqs = ca.vertcat(*init_rows, man)
-    if eqs.numel() == 0:
+    a = prob.aug
+    nman = int(prob.man_fun.size1_out(0))
+    rows = [2 * nman + i for i, k in enumerate(prob.bc_kinds) if k == "initial"]
+    rows += list(range(nman))
+    if not rows:
         return None
     n = vg.size
     s = np.ones(n)
-    s[nx:] = 100.0
-    F = ca.Function("start", [v], [eqs, ca.jacobian(eqs, v)])
+    s[a.nx:] = 100.0
+    sub = rows_of(prob.ends_fun, rows)
+    w0 = np.asarray(w0, float)
 
     def fun(u, _vT, _p, _T):
-        r, J = F(vg + s * u)
-        J = as_array(J) * s
-        return as_array(r), np.hstack([J, np.zeros_like(J)])
+        v0 = np.concatenate([vg + s * u, w0])
+        r, J = sub(v0, v0, p, 0.0)
+        J = J[:, :n] * s
+        return r, np.hstack([J, np.zeros_like(J)])
 
     u, _, res = project_ends(fun, np.zeros(n), np.zeros(n), None, 0.0, tol=1e-10)
     sol = vg + s * u
@@ -626,6 +632,13 @@ def _consistent_start(prob, xg, zg, w0, p):
     n = a.nx + a.nz
     if n == 0:
         return xg, zg
+    xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
+    vg = np.concatenate([xg, zg])
+    lb, ub = np.concatenate([xlb, zlb]), np.concatenate([xub, zub])
+    sol = _start_by_projection(prob, w0, p, vg, lb, ub)
+    if sol is not None:
+        return sol[: a.nx], sol[a.nx:]
+    # the least-squares problem (on the initial conditions, then the distance to the guesses)
     v = ca.SX.sym("v", n)
     x, z = seg(v, 0, a.nx), seg(v, a.nx, n)
     vw = ca.vertcat(x, z, ca.DM(w0))
@@ -634,12 +647,6 @@ def _consistent_start(prob, xg, zg, w0, p):
     obj = ca.sumsqr(ca.vertcat(*[rows[i] for i in init])) if init else 0
     obj = obj + 1e-4 * ca.sumsqr(x - xg) + 1e-8 * ca.sumsqr(z - zg)
     man = prob.man_fun(0.0, vw, ca.DM(p))
-    xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
-    vg = np.concatenate([xg, zg])
-    lb, ub = np.concatenate([xlb, zlb]), np.concatenate([xub, zub])
-    sol = _start_by_projection(v, [rows[i] for i in init], man, vg, a.nx, lb, ub)
-    if sol is not None:
-        return sol[: a.nx], sol[a.nx:]
     try:
         solver = ca.nlpsol("init", "ipopt", {"x": v, "f": obj, "g": man},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

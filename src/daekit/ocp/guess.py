@@ -15,7 +15,8 @@ their own grid:
   and the final conditions at ``t = T`` (held constant when there is no such point nearby);
   the guess's note (in the report) says so. When the simulation runs through but does not
   reach the final conditions (a pendulum to be swung up stays hanging), the guess *blends*
-  from the initial point to the consistent final point nearest the simulation's end, along
+  from the initial point to the consistent final point nearest the simulation's end (with the
+  variables that final conditions fix by name at their values: :func:`consistent_end`), along
   the invariant manifold (:func:`_manifold_blend`: a small least-squares NLP for states,
   algebraic unknowns and controls on the interval boundaries), so that the default guess
   respects the boundary conditions.
@@ -213,7 +214,7 @@ def make_guess(prob, guess) -> Guess:
                         f"conditions (the simulation with the guessed controls missed them by "
                         f"{miss:.3g}): the smoothest one whose positions, velocities and "
                         f"invariants agree, ending at the consistent final point nearest the "
-                        f"simulation's end")
+                        f"simulation's end with the given final values")
 
     def cols(vs, n):  # list of (n,) arrays -> (n, len) even when n == 0
         return np.asarray(vs, float).reshape(len(vs), n).T

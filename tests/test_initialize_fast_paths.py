@@ -5,7 +5,9 @@
 - the union-find of small models' connected parts against SciPy's connected_components;
 - CasADi functions called through their raw buffers (FastFunction) against Function calls,
   also from two threads at once;
-- the derivative array tested at its top level first: the same answer as level by level.
+- the derivative array tested at its top level first: the same answer as level by level;
+- initialize from a start that is consistent already (every state fixed, as in a sweep over
+  initial states): no Gauss-Newton step, and the exact multiplier.
 """
 
 from __future__ import annotations
@@ -202,3 +204,20 @@ def equilibrate_reference(A):
         keep = np.where(S > numerics.NOISE, B, 0.0)
     lr, lc = _curtis_reid(keep)
     return _ruiz(B, np.exp2(np.round(lr)), np.exp2(np.round(lc)), issparse)
+
+
+@pytest.mark.parametrize("L, speed", [(1.0, 1.2), (0.8, 0.5), (1.2, 2.0)])
+def test_initialize_all_states_fixed_takes_no_step(L, speed):
+    # 3D pendulum (m = 1, g = 9.81), every state fixed and consistent (p, v on the rod and
+    # tangent to it): nothing to iterate; the rod force per unit length follows from d/dt p.v = 0,
+    # z = (v.v - g p3) / L^2 exactly
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    p, v = [0.6 * L, 0.0, -0.8 * L], [0.0, speed, 0.0]
+    init = dk.initialize(r, fixed={"p": p, "der(p)": v}, params={"L": L})
+    assert init.iterations == 0
+    assert init.x0.tolist() == p + v  # held to the last bit
+    assert init.z0[0] == pytest.approx((speed**2 + 9.81 * 0.8 * L) / L**2, rel=1e-14)
+    assert sorted(init.redundant) == ["der(p)[2]", "p[2]"] and init.dof == 4
+    # the same values pushed off the rod by 1e-6: a contradiction, still found
+    with pytest.raises(dk.errors.InitializationError, match="rod"):
+        dk.initialize(r, fixed={"p": [p[0] + 1e-6, 0.0, p[2]], "der(p)": v}, params={"L": L})

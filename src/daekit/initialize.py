@@ -735,6 +735,12 @@ def initialize(
         it = 0
         hv, J = hval(wv)
         fv = objective(wv)
+        if (fv == 0.0 and np.all(np.isfinite(hv)) and jac_finite(J)
+                and small(hv, wv, J, tol)):
+            # the start is consistent already and meets every guess (all states fixed and
+            # consistent, as in a sweep over initial states): a step could only move it by
+            # rounding, and would cost a factorization and a line search
+            return wv, hv, J, True, 0
         y = None
         history: list[float] = []
         for it in range(1, max_iter + 1):  # noqa: B007

@@ -261,8 +261,16 @@ BLEND_DERIVATIVES = "closed form"
 #: forms of the final state (16 problems) every solve reaches the upright state either way;
 #: OCP iterations 532 -> 594 in all, CPU 7.2 -> 4.7 s (one case each needs the run without the
 #: branch inequalities: T = 1.5, N = 30 before; T = 2, N = 40 after).
+#: MUMPS' own scaling is off (``mumps_scaling = 0``): the blend's KKT systems are small and the
+#: scaling is computed at every factorization (IPOPT refactorizes about twice per iteration
+#: here, for the inertia correction). Measured with callgrind (instructions per default guess,
+#: deterministic where wall times on this shared machine vary by 30 %): cart-pole swing-up
+#: 262 -> 247 million; the same blend and OCP iterations on the swing, Betts 10.103, the
+#: cart-pole, the crane, the delta robot, and over the 16 cart-pole variants (one of them 72 ->
+#: 71 OCP iterations).
 BLEND_TOLERANCES = {"ipopt.tol": 1e-1, "ipopt.constr_viol_tol": 1e-2, "ipopt.dual_inf_tol": 1.0,
-                    "ipopt.mu_strategy": "adaptive", "ipopt.constr_mult_init_max": 0.0}
+                    "ipopt.mu_strategy": "adaptive", "ipopt.constr_mult_init_max": 0.0,
+                    "ipopt.mumps_scaling": 0}
 
 
 def _final_miss(prob, x, z, w, p, T) -> float:

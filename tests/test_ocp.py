@@ -792,6 +792,29 @@ def test_default_guess_starts_at_the_exact_consistent_point():
     assert max(abs(got[k] - v) for k, v in exact.items()) <= 1e-12
 
 
+@pytest.mark.parametrize("final_all", [True, False])
+@pytest.mark.parametrize("asymmetry", [0.0, 1e-19, -1e-19])
+def test_consistent_final_point_from_exactly_hanging(final_all, asymmetry):
+    """The cart-pole's consistent final point from the exactly hanging state (where the zero
+    control simulation ends) is the upright state at rest, s = 0, p = (0, L), lam = -m g / (2 L)
+    (tip equation at rest), whatever the roundoff-level asymmetry of p[0]: a Gauss-Newton
+    projection from the hanging state has no gradient towards either side there (before: no
+    consistent point from the exact symmetric state, residual 1)."""
+    from daekit.examples.ocp_examples import CARTPOLE, cartpole_ocp
+    from daekit.ocp.guess import consistent_end
+
+    prob = cartpole_ocp(final_all).compile()
+    a = prob.aug
+    L, m, g = CARTPOLE["L"], CARTPOLE["m"], CARTPOLE["g"]
+    hanging = dict.fromkeys(a.x_names, 0.0) | {"p[1]": -L, "p[0]": asymmetry}
+    xe, ze, ok = consistent_end(prob, np.array([hanging[n] for n in a.x_names]), np.zeros(a.nz),
+                                np.zeros(a.nw), prob.p_guess(), CARTPOLE["T"])
+    assert ok
+    upright = dict.fromkeys(a.x_names, 0.0) | {"p[1]": L}
+    assert np.max(np.abs(xe - [upright[n] for n in a.x_names])) <= 1e-12
+    assert ze[0] == pytest.approx(-m * g / (2 * L), abs=1e-12)
+
+
 @pytest.mark.parametrize("initial_all", [True, False])
 def test_betts_pendulum_from_the_index3_model(initial_all):
     sol = betts_pendulum(initial_all).solve()

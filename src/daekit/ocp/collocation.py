@@ -336,7 +336,10 @@ def _structured_derivatives(prob, fq, V, Q, J, G_real, J_real, tc, X, Z, Wc, Pm,
     H = HV if Hp is None else HV + Hp
     hess_lag = ca.Function("nlp_hess_l", [V, p_in, lam_f, lam_g], [ca.triu(H)])
     # the objective's gradient: the Radau weights through the per-point Jacobians, plus the
-    # Mayer term's (J is linear in Q and separable, so its V part is that at Q = 0)
+    # Mayer term's (J is linear in Q and separable, so its V part is that at Q = 0). Measured:
+    # the objective and its gradient from the integrand alone (its own mapped function and
+    # gradient) evaluate 0.04 ms faster per call pair but cost 1.2 ms (swing) / 0.6 ms
+    # (cart-pole) more to build than IPOPT's 6-8 calls save
     gend = ca.Function("grad_ends", [us], [ca.gradient(J_s, us)])
     grad = ca.mtimes(D.T, lin["gJ"]) + ca.mtimes(place.T, gend(um))
     grad_f = ca.Function("nlp_grad_f", [V, p_in], [J_real, ca.densify(grad)])  # IPOPT: dense

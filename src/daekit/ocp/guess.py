@@ -15,7 +15,8 @@ their own grid:
   and the final conditions at ``t = T`` (held constant when there is no such point nearby);
   the guess's note (in the report) says so. When the simulation runs through but does not
   reach the final conditions (a pendulum to be swung up stays hanging), the guess *blends*
-  from the initial point to the consistent final point nearest the simulation's end, along
+  from the initial point to the consistent final point nearest the simulation's end (with the
+  variables that final conditions fix by name at their values: :func:`consistent_end`), along
   the invariant manifold (:func:`_manifold_blend`: a small least-squares NLP for states,
   algebraic unknowns and controls on the interval boundaries), so that the default guess
   respects the boundary conditions.
@@ -38,7 +39,7 @@ import numpy as np
 from ..errors import OCPError
 from .nlp import quiet
 
-__all__ = ["Guess", "make_guess"]
+__all__ = ["Guess", "make_guess", "consistent_end"]
 
 
 @dataclass
@@ -184,7 +185,7 @@ def make_guess(prob, guess) -> Guess:
     if failed is not None:
         tf = failed[0]
         i0 = next(i for i, t in enumerate(ts) if t > tf)
-        xe, ze, ok = _consistent_end(prob, Xs[i0 - 1], Zs[i0 - 1], Ws[-1], p, T)
+        xe, ze, ok = consistent_end(prob, Xs[i0 - 1], Zs[i0 - 1], Ws[-1], p, T)
         if ok:
             for i in range(i0, len(ts)):
                 s_ = (ts[i] - tf) / (T - tf)
@@ -197,7 +198,7 @@ def make_guess(prob, guess) -> Guess:
     else:
         miss = _final_miss(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
         if miss > 1e-3:
-            xe, ze, ok = _consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
+            xe, ze, ok = consistent_end(prob, Xs[-1], Zs[-1], Ws[-1], p, T)
             # on the interval boundaries (and the ends), interpolated in between
             # (at most BLEND_NODES of them: a guess needs no finer path)
             step = tau.size * max(1, int(np.ceil(N / (BLEND_NODES - 1))))
@@ -213,7 +214,7 @@ def make_guess(prob, guess) -> Guess:
                         f"conditions (the simulation with the guessed controls missed them by "
                         f"{miss:.3g}): the smoothest one whose positions, velocities and "
                         f"invariants agree, ending at the consistent final point nearest the "
-                        f"simulation's end")
+                        f"simulation's end with the given final values")
 
     def cols(vs, n):  # list of (n,) arrays -> (n, len) even when n == 0
         return np.asarray(vs, float).reshape(len(vs), n).T
@@ -260,8 +261,16 @@ BLEND_DERIVATIVES = "closed form"
 #: forms of the final state (16 problems) every solve reaches the upright state either way;
 #: OCP iterations 532 -> 594 in all, CPU 7.2 -> 4.7 s (one case each needs the run without the
 #: branch inequalities: T = 1.5, N = 30 before; T = 2, N = 40 after).
+#: MUMPS' own scaling is off (``mumps_scaling = 0``): the blend's KKT systems are small and the
+#: scaling is computed at every factorization (IPOPT refactorizes about twice per iteration
+#: here, for the inertia correction). Measured with callgrind (instructions per default guess,
+#: deterministic where wall times on this shared machine vary by 30 %): cart-pole swing-up
+#: 262 -> 247 million; the same blend and OCP iterations on the swing, Betts 10.103, the
+#: cart-pole, the crane, the delta robot, and over the 16 cart-pole variants (one of them 72 ->
+#: 71 OCP iterations).
 BLEND_TOLERANCES = {"ipopt.tol": 1e-1, "ipopt.constr_viol_tol": 1e-2, "ipopt.dual_inf_tol": 1.0,
-                    "ipopt.mu_strategy": "adaptive", "ipopt.constr_mult_init_max": 0.0}
+                    "ipopt.mu_strategy": "adaptive", "ipopt.constr_mult_init_max": 0.0,
+                    "ipopt.mumps_scaling": 0}
 
 
 def _final_miss(prob, x, z, w, p, T) -> float:
@@ -529,28 +538,58 @@ class _GuessSimulator:
         raise err if err is not None else RuntimeError("integration failed")
 
 
-def _consistent_end(prob, x, z, w, p, T):
+def _given_final_values(prob, x, z):
+    """``(x, z)`` with every state or algebraic unknown that a final condition fixes by name
+    (``final s = 0``) set to its value."""
+    a = prob.aug
+    x, z = np.array(x, float), np.array(z, float)
+    for c in prob.conditions:
+        w = a.which(c.expr) if c.kind == "final" else None
+        if w is not None and w[0] in ("x", "z"):
+            (x if w[0] == "x" else z)[w[1]] = c.value
+    return x, z
+
+
+def consistent_end(prob, x, z, w, p, T):
     """The point nearest ``(x, z)`` (Gauss-Newton, least-norm steps) where the algebraic
     equations, the invariants and the final conditions hold at ``t = T``; ``ok`` is False when
-    they cannot be met (the caller then holds the state constant)."""
-    from .consistency import as_array, project_ends
+    they cannot be met (the caller then holds the state constant).
+
+    The projection starts with the variables that a final condition fixes by name at their
+    values (:func:`_given_final_values`). From the simulation's end alone it could start at a
+    symmetric point: the cart-pole hanging exactly below its pivot, projected onto
+    ``p[1] = L``, has no gradient towards either side (the circle's tangent there is
+    horizontal), so Gauss-Newton stalled or left the side to roundoff and converged only
+    linearly to a degenerate root (a final point 1e-3 off the upright one). Set to the given
+    ``s = 0, p[1] = L`` first, the upright point holds exactly from the start. The rows are
+    those of the compiled end-point function (:attr:`~daekit.ocp.compiled.Problem.ends_fun`).
+
+    >>> import numpy as np
+    >>> from daekit.examples.ocp_examples import cartpole_ocp
+    >>> prob = cartpole_ocp(final_all=False).compile(); a = prob.aug
+    >>> hanging = np.where(np.array(a.x_names) == "p[1]", -0.5, 0.0)
+    >>> xe, ze, ok = consistent_end(prob, hanging, [0.0], [0.0], prob.p_guess(), 2.0)
+    >>> ok, np.round(xe, 12).tolist(), np.round(ze, 12).tolist()   # lam = -m g / (2 L)
+    (True, [0.0, 0.0, 0.0, 0.5, 0.0, 0.0], [-2.943])
+    """
+    from .consistency import project_ends, rows_of
 
     a = prob.aug
+    x, z = _given_final_values(prob, x, z)
     n = a.nx + a.nz + a.nw
-    v = ca.SX.sym("v", n)
-    rows = prob.bc_fun(v, v, ca.DM(p), T)
-    fin = [rows[i] for i, k in enumerate(prob.bc_kinds) if k == "final"]
-    eqs = ca.vertcat(prob.man_fun(T, v, ca.DM(p)), *fin)
-    if eqs.numel() == 0:
+    nman = int(prob.man_fun.size1_out(0))
+    # the manifold at t = T and the final conditions: rows of the compiled end-point function
+    rows = list(range(nman, 2 * nman)) + [2 * nman + i for i, k in enumerate(prob.bc_kinds)
+                                          if k == "final"]
+    if not rows:
         return x, z, False
-    F = ca.Function("end", [v], [eqs, ca.jacobian(eqs, v)])
-    nw = a.nw
+    sub = rows_of(prob.ends_fun, rows)
 
-    def fun(_v0, vT, _p, _T):  # only the final point moves; w is held at its value
-        r, J = F(vT)
-        J = as_array(J)
-        J[:, n - nw:] = 0.0
-        return as_array(r), np.hstack([np.zeros_like(J), J])
+    def fun(v0, vT, p_, T_):  # only the final point moves; w is held at its value
+        r, J = sub(v0, vT, p_, T_)
+        J[:, :n] = 0.0
+        J[:, 2 * n - a.nw:] = 0.0
+        return r, J
 
     v0 = np.concatenate([x, z, w])
     _, vT, res = project_ends(fun, v0, v0, p, T, tol=1e-9)
@@ -559,27 +598,33 @@ def _consistent_end(prob, x, z, w, p, T):
     return vT[: a.nx], vT[a.nx:a.nx + a.nz], True
 
 
-def _start_by_projection(v, init_rows, man, vg, nx, lb, ub):
-    """The point where the initial conditions ``init_rows`` and the manifold rows ``man`` hold,
-    by Gauss-Newton from ``vg`` with least-norm steps in which the algebraic unknowns (the
-    entries after ``nx``) move 100 times more cheaply than the states (the weights of
+def _start_by_projection(prob, w0, p, vg, lb, ub):
+    """The point ``(x, z)`` where the initial conditions and the manifold at ``t = 0`` hold
+    (with the controls ``w0``), by Gauss-Newton from ``vg`` with least-norm steps in which the
+    algebraic unknowns move 100 times more cheaply than the states (the weights of
     :func:`_consistent_start`'s least squares); None unless all rows hold to 1e-10 (scaled)
     within the bounds ``lb, ub`` (then the least-squares problem decides). A few
-    evaluations of one small function instead of building and running an IPOPT problem."""
-    from .consistency import as_array, project_ends
+    evaluations of the compiled end-point function (its rows at ``t = 0``) instead of
+    building and running an IPOPT problem."""
+    from .consistency import project_ends, rows_of
 
-    eqs = ca.vertcat(*init_rows, man)
-    if eqs.numel() == 0:
+    a = prob.aug
+    nman = int(prob.man_fun.size1_out(0))
+    rows = [2 * nman + i for i, k in enumerate(prob.bc_kinds) if k == "initial"]
+    rows += list(range(nman))
+    if not rows:
         return None
     n = vg.size
     s = np.ones(n)
-    s[nx:] = 100.0
-    F = ca.Function("start", [v], [eqs, ca.jacobian(eqs, v)])
+    s[a.nx:] = 100.0
+    sub = rows_of(prob.ends_fun, rows)
+    w0 = np.asarray(w0, float)
 
     def fun(u, _vT, _p, _T):
-        r, J = F(vg + s * u)
-        J = as_array(J) * s
-        return as_array(r), np.hstack([J, np.zeros_like(J)])
+        v0 = np.concatenate([vg + s * u, w0])
+        r, J = sub(v0, v0, p, 0.0)
+        J = J[:, :n] * s
+        return r, np.hstack([J, np.zeros_like(J)])
 
     u, _, res = project_ends(fun, np.zeros(n), np.zeros(n), None, 0.0, tol=1e-10)
     sol = vg + s * u
@@ -596,6 +641,13 @@ def _consistent_start(prob, xg, zg, w0, p):
     n = a.nx + a.nz
     if n == 0:
         return xg, zg
+    xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
+    vg = np.concatenate([xg, zg])
+    lb, ub = np.concatenate([xlb, zlb]), np.concatenate([xub, zub])
+    sol = _start_by_projection(prob, w0, p, vg, lb, ub)
+    if sol is not None:
+        return sol[: a.nx], sol[a.nx:]
+    # the least-squares problem (on the initial conditions, then the distance to the guesses)
     v = ca.SX.sym("v", n)
     x, z = seg(v, 0, a.nx), seg(v, a.nx, n)
     vw = ca.vertcat(x, z, ca.DM(w0))
@@ -604,12 +656,6 @@ def _consistent_start(prob, xg, zg, w0, p):
     obj = ca.sumsqr(ca.vertcat(*[rows[i] for i in init])) if init else 0
     obj = obj + 1e-4 * ca.sumsqr(x - xg) + 1e-8 * ca.sumsqr(z - zg)
     man = prob.man_fun(0.0, vw, ca.DM(p))
-    xlb, xub, zlb, zub, _, _ = prob.simple_bounds()
-    vg = np.concatenate([xg, zg])
-    lb, ub = np.concatenate([xlb, zlb]), np.concatenate([xub, zub])
-    sol = _start_by_projection(v, [rows[i] for i in init], man, vg, a.nx, lb, ub)
-    if sol is not None:
-        return sol[: a.nx], sol[a.nx:]
     try:
         solver = ca.nlpsol("init", "ipopt", {"x": v, "f": obj, "g": man},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",

@@ -469,7 +469,9 @@ def initialize(
     Method: Newton--Lagrange steps (Gauss--Newton plus the constraints' curvature) with CasADi
     derivatives, ``z`` re-solved from ``alg`` after each step, dense NumPy for small systems and
     sparse SuperLU factorizations from 300 unknowns on (see the module docstring); no IPOPT
-    needed. What depends only on ``r`` is computed once and cached on it.
+    needed. A start that is consistent already and meets every guess (every state fixed to
+    consistent values, as in a sweep over initial states) takes no step (``iterations`` 0).
+    What depends only on ``r`` is computed once and cached on it.
 
     Example
     -------

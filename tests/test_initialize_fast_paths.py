@@ -221,3 +221,59 @@ def test_initialize_all_states_fixed_takes_no_step(L, speed):
     # the same values pushed off the rod by 1e-6: a contradiction, still found
     with pytest.raises(dk.errors.InitializationError, match="rod"):
         dk.initialize(r, fixed={"p": [p[0] + 1e-6, 0.0, p[2]], "der(p)": v}, params={"L": L})
+
+
+def _stacked_truth(C: np.ndarray, cols: list[int]) -> list[int]:
+    """Fixed states implied by the rows of ``C`` and the fixed states before them: dense
+    Gram-Schmidt on the rows ``[C; e_j ...]`` in that order (rows normalized)."""
+    from daekit.initialize import _greedy_dependent_rows
+
+    E = np.zeros((len(cols), C.shape[1]))
+    E[np.arange(len(cols)), cols] = 1.0
+    rows = np.vstack([C, E])
+    norms = np.linalg.norm(rows, axis=1)
+    rows = rows / np.where(norms > 0, norms, 1.0)[:, None]
+    dep = _greedy_dependent_rows(rows, 1e-9)
+    return [k - C.shape[0] for k in dep if k >= C.shape[0]]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_redundant_fixed_states_match_dense_gram_schmidt(seed):
+    # the linear elimination of the sparse path (_redundant_fixed_states) against the dense
+    # greedy row basis, on chain-like banded consistency rows (some rows combinations of
+    # others, some states in no row) with random subsets of fixed states in random order,
+    # some fixed twice
+    from daekit.initialize import _redundant_fixed_states
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 40))
+    m = int(rng.integers(1, n))
+    C = np.zeros((m, n))
+    for i in range(m):
+        j = int(rng.integers(0, n - 2))
+        C[i, j:j + 3] = rng.normal(size=3) * (rng.random(3) < 0.8)
+    if m > 2 and seed % 3 == 0:
+        C[-1] = C[0] * 2.0 - C[1] * 0.5  # a dependent consistency row
+    C[:, rng.random(n) < 0.1] = 0.0
+    C = C * 10.0 ** rng.uniform(-3, 3, (1, n))  # units of the states
+    cols = rng.permutation(n)[: int(rng.integers(1, n + 1))].tolist()
+    if seed % 4 == 0:
+        cols.append(cols[0])  # fixed twice
+    got = _redundant_fixed_states(sp.csr_matrix(C), np.array(cols))
+    assert got == _stacked_truth(C, cols)
+
+
+def test_all_fixed_chain_redundant_values_exactly():
+    # the planar chain of 70 links (350 unknowns: the sparse path) stretched along the x-axis at
+    # rest, every position and velocity fixed: the rods and their derivatives fix every x
+    # component (rod k: 2 (x_k - x_{k-1}) d x), so exactly the x components are implied, in
+    # either order of the fixed values
+    N = 70
+    r = dk.reduce_index(dk.examples.planar_chain(N))
+    pos = np.zeros(2 * N)
+    pos[0::2] = np.arange(1, N + 1)
+    xs = {f"q[{2 * k}]" for k in range(N)} | {f"v[{2 * k}]" for k in range(N)}
+    for fixed in ({"q": pos, "v": np.zeros(2 * N)}, {"v": np.zeros(2 * N), "q": pos}):
+        init = dk.initialize(r, fixed=fixed)
+        assert set(init.redundant) == xs and len(init.redundant) == 2 * N
+        assert init.iterations == 0 and init.dof == 2 * N

@@ -1474,6 +1474,98 @@ def _greedy_dependent_sparse(F: sp.csr_matrix, tol: float) -> list[int]:
     return dependent
 
 
+def _fixed_state_columns(Jf: sp.csr_matrix, nx: int) -> np.ndarray | None:
+    """The state column of each fixed row when every fixed row is a unit row of a state (a
+    fixed value of a state itself), else None."""
+    Jf = Jf.tocsr()
+    if Jf.shape[0] == 0 or not np.all(np.diff(Jf.indptr) == 1):
+        return None
+    cols = Jf.indices[Jf.indptr[:-1]]
+    if np.any(cols >= nx) or np.any(Jf.data[Jf.indptr[:-1]] == 0.0):
+        return None
+    return cols.astype(np.int64)
+
+
+def _redundant_fixed_states(C: sp.csr_matrix, fixed_cols: np.ndarray, rtol: float = 1e-9,
+                            fill_limit: int = 50) -> list[int] | None:
+    """Positions ``k`` of the fixed states ``fixed_cols[k]`` (in the user's order) that the
+    consistency rows ``C`` and the fixed states before them imply; None where the elimination
+    fills more than ``fill_limit`` times the entries of ``C`` (the caller then takes the general
+    route).
+
+    Why it works: ``e_j`` lies in the span of the rows of ``C`` and of ``e_i`` (``i`` in the set
+    ``S`` fixed before) iff column ``j`` of ``C`` restricted to the columns outside ``S`` is not
+    a combination of the others there (removing it lowers the rank). So, with the columns in
+    the order *unfixed states, then the fixed ones in reverse*, a fixed state is implied iff
+    its column enters the greedy column basis of ``C``: one pass of Gaussian elimination by
+    columns with partial pivoting (a column whose remainder is below ``rtol`` times its own
+    largest entry is dependent; both are invariant under the units of that state). The
+    remainders stay within the band of a chain, so the pass is linear in its length.
+
+    >>> import scipy.sparse as sp
+    >>> C = sp.csr_matrix([[1.0, 1.0, 0.0]])          # x0 + x1 is constrained, x2 free
+    >>> _redundant_fixed_states(C, np.array([0, 2, 1]))  # x1, fixed last, is implied
+    [2]
+    """
+    import heapq
+
+    n_c, nx = C.shape
+    Cc = C.tocsc()
+    Cc.sum_duplicates()
+    redundant: list[int] = []
+    first: dict[int, int] = {}
+    for k, j in enumerate(fixed_cols.tolist()):
+        if j in first:
+            redundant.append(k)  # the same state fixed twice: implied by the first
+        else:
+            first[j] = k
+    fixed_set = set(first)
+    order = [j for j in range(nx) if j not in fixed_set] + list(reversed(list(first)))
+    pivot_of: dict[int, int] = {}  # row -> index of its pivot column vector
+    pivots: list[tuple[int, dict[int, float]]] = []
+    stored, limit = 0, fill_limit * (Cc.nnz + n_c + 1)
+    indptr, indices, data = Cc.indptr, Cc.indices, Cc.data
+    for j in order:
+        lo, hi = int(indptr[j]), int(indptr[j + 1])
+        if lo == hi:
+            continue  # a state no consistency row involves: never implied
+        col = dict(zip(indices[lo:hi].tolist(), data[lo:hi].tolist()))
+        big = max(abs(v) for v in col.values())
+        heap = [pivot_of[i] for i in col if i in pivot_of]
+        heapq.heapify(heap)
+        applied: set[int] = set()
+        while heap:
+            p = heapq.heappop(heap)
+            if p in applied:
+                continue
+            applied.add(p)
+            row, u = pivots[p]
+            a = col.get(row, 0.0)
+            if a == 0.0:
+                continue
+            f = a / u[row]
+            for i, v in u.items():
+                if i not in col:
+                    col[i] = 0.0
+                    q = pivot_of.get(i)
+                    if q is not None:
+                        heapq.heappush(heap, q)
+                col[i] -= f * v
+            col[row] = 0.0
+        rest = {i: v for i, v in col.items() if i not in pivot_of and v != 0.0}
+        if rest:
+            row = max(rest, key=lambda i: abs(rest[i]))
+            if abs(rest[row]) > rtol * big:
+                pivot_of[row] = len(pivots)
+                pivots.append((row, rest))
+                stored += len(rest)
+                if stored > limit:
+                    return None
+                if j in fixed_set:
+                    redundant.append(first[j])  # enters the basis: implied (see above)
+    return sorted(redundant)
+
+
 def _drop_small(A: sp.csr_matrix, tol: float) -> sp.csr_matrix:
     A = A.tocsr(copy=True)
     A.data[np.abs(A.data) <= tol] = 0.0
@@ -1626,6 +1718,13 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
     free = {x_names[i] for i in range(nx) if not in_D[i]}
     if not fixed_names:
         return free, []
+    unit = _fixed_state_columns(Jf, nx)
+    if unit is not None:
+        # fixed values of states only (unit rows): decided on C itself, linear for chains
+        # (the coordinates below are dense for them: quadratic, 4.3 s at 3000 links)
+        dependent = _redundant_fixed_states(C, unit)
+        if dependent is not None:
+            return free, [fixed_names[k] for k in dependent]
     Ncols = np.where(~in_D)[0]
     F = _drop_small(elim(Jf), drop)
     FN = F[:, Ncols].tocsr()

@@ -182,3 +182,23 @@ def test_row_projection_is_the_exact_nearest_point(n, symbolic, circle_system):
     assert np.max(np.abs(Zp[:, 0] - exact[:, 0])) < 1e-13
     assert np.max(np.abs(Xp - X)) > 1e-7  # (it did move them)
     assert P._symbolic is symbolic
+
+
+@pytest.mark.parametrize("u", ["constant", "varying"])
+def test_compact_pickling_carries_the_inputs(pendulum3d, u):
+    """Inside compact_pickling (an ensemble's workers) a trajectory travels as its state arrays;
+    constant inputs as one row. Unpickled, every column equals the sender's bit for bit, and
+    der(v) is the model's -z p - g e3 + u (unit mass) with the inputs sent."""
+    from daekit.simulate.trajectory import compact_pickling
+
+    r, _, init, _ = pendulum3d
+    force = ca.DM([0.3, 0.0, 0.0]) if u == "constant" else \
+        ca.vertcat(0.3 * ca.sin(r.t), 0.0, 0.1 * r.t)
+    tr = dk.simulate(r, np.linspace(0.0, 1.0, 50), init, inputs={"u": force}, rtol=1e-8,
+                     atol=1e-8)
+    with compact_pickling():
+        back = pickle.loads(pickle.dumps(tr))
+    for name in ("p", "v", "z", "u", "der(v)"):
+        assert np.array_equal(back[name], tr[name]), name
+    acc = -tr["z"][:, None] * tr["p"] - np.array([0.0, 0.0, G]) + back["u"]
+    assert np.allclose(back["der(v)"], acc, rtol=0, atol=1e-12)

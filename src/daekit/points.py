@@ -610,8 +610,7 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
             if not (np.all((rmax == 0) == (row_ref == 0))
                     and np.all((rmax <= 2.0 * row_ref) & (row_ref <= 2.0 * rmax))):
                 Jc = J * dc[None, :] if dense else sp.csc_matrix(
-                    (J.data * np.repeat(dc, np.diff(J.indptr)), J.indices, J.indptr),
-                    shape=J.shape)
+                    (J.data * dc[ops.cols_of(J)], J.indices, J.indptr), shape=J.shape)
                 dr = equilibrate(Jc)[0]
                 row_ref = rmax
                 r = merit(h)

@@ -582,9 +582,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             "unknowns at all"
         )
 
-    # the random point, the second consistent point (kept between levels: each level's
-    # Gauss-Newton starts where the last one ended), whether the last level tested had one
-    state = {"rnd": None, "other": None, "consistent": True}
+    # the random point, and the second consistent point (kept between levels: each level's
+    # Gauss-Newton starts where the last one ended)
+    state = {"rnd": None, "other": None}
 
     def test(k: int):
         """Ranks at level ``k``: ``(r_all, r_rest, fulls)`` over the consistent points."""
@@ -624,9 +624,8 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         # second is not needed where the first attains the random point's ranks, the most
         # any point has
         cache: dict = {}  # the functions of the iteration, made once for both points
-        state["consistent"] = consistent_point(pt, arr, cache=cache).consistent
-        consistent_at[k] = state["consistent"]
-        if not state["consistent"]:
+        consistent_at[k] = consistent_point(pt, arr, cache=cache).consistent
+        if not consistent_at[k]:
             rank_at(pt)  # as it is (pt.status says it is not consistent)
             return r_all, r_rest, fulls
         rank_at(pt)
@@ -680,7 +679,7 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
     if soft:
-        if not state["consistent"]:
+        if not consistent_at.get(max_index, True):  # (the level tested last)
             why["unknown"] = (f"no consistent point of its derivative array to level "
                               f"{max_index} was found")
         return None

@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from ..errors import SimulationError
 from .driver import Action, Firing, Monitor, Segment
-from .vectorized import evaluate_columns, evaluate_rows, fast_call, spd_inverse
+from .vectorized import evaluate_columns, evaluate_rows, fast_call, rows_equal, spd_inverse
 
 __all__ = ["Projector", "DriftMonitor", "default_drift_tol"]
 
@@ -333,7 +333,7 @@ class Projector:
         W0 = Wc.copy()
         Tc = T.reshape(1, N)
         U = np.asarray(U, float).reshape(N, -1)
-        Uc = U[:1].T.copy() if not U.size or (U == U[0]).all() else np.ascontiguousarray(U.T)
+        Uc = U[:1].T.copy() if not U.size or rows_equal(U) else np.ascontiguousarray(U.T)
         Pc = np.asarray(p, float).reshape(-1, 1)
         if self.rtol is not None:
             sx = self.atol + self.rtol * np.abs(Wc[:nx])

@@ -43,7 +43,7 @@ from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal, signal_for
 from ..numerics import FastFunction
 from .trajectory import LazyColumns, Trajectory
-from .vectorized import evaluate_columns, evaluate_rows, fast_call
+from .vectorized import evaluate_columns, evaluate_rows, fast_call, rows_equal
 
 __all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of", "evaluator_of",
@@ -299,7 +299,7 @@ class StateColumns:
 
     def __reduce__(self):
         U = self.U
-        if U.ndim == 2 and U.shape[0] > 1 and U.shape[1] and (U == U[:1]).all():
+        if U.ndim == 2 and U.shape[0] > 1 and U.shape[1] and rows_equal(U):
             # constant inputs (zero, the common case) as one row: a fifth of the bytes of a
             # 3D-pendulum trajectory an ensemble's worker sends
             return (_with_constant_inputs, (self.r, self.tg, self.X, self.Z, U[0].copy(),
@@ -489,7 +489,7 @@ class System:
         Xc = np.ascontiguousarray(np.asarray(X, float).reshape(n, -1).T)
         Zc = np.ascontiguousarray(np.asarray(Z, float).reshape(n, -1).T)
         U = np.asarray(U, float).reshape(n, -1)
-        Uc = U[:1].T.copy() if not U.size or (U == U[0]).all() else np.ascontiguousarray(U.T)
+        Uc = U[:1].T.copy() if not U.size or rows_equal(U) else np.ascontiguousarray(U.T)
         Pc = np.asarray(p, float).reshape(-1, 1)
         for _ in range(iters):
             g, dz = evaluate_columns(self._alg_step, [Tc, Xc, Zc, Uc, Pc], n,

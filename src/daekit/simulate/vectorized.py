@@ -28,7 +28,8 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
-__all__ = ["RowEvaluator", "evaluate_rows", "evaluate_columns", "fast_call", "spd_inverse"]
+__all__ = ["RowEvaluator", "evaluate_rows", "evaluate_columns", "fast_call", "rows_equal",
+           "spd_inverse"]
 
 
 def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
@@ -268,3 +269,12 @@ def spd_inverse(M: np.ndarray) -> np.ndarray:
                     a[i][j] = a[i][j] - f * a[c][j]
                     e[i][j] = e[i][j] - f * e[c][j]
     return np.stack([np.stack(row, axis=1) for row in e], axis=1)
+
+
+def rows_equal(U: np.ndarray) -> bool:
+    """Whether every row of the 2-D ``U`` equals its first (constant inputs over a grid).
+
+    >>> rows_equal(np.zeros((3, 2))), rows_equal(np.arange(4.0).reshape(2, 2))
+    (True, False)
+    """
+    return bool((U == U[:1]).all())

@@ -12,7 +12,10 @@ goes on.
 Where the samples run (``executor=``):
 
 - ``None``: local worker processes (:class:`concurrent.futures.ProcessPoolExecutor`, one per
-  core); the system is installed in every worker by its initializer.
+  core); the system is installed in every worker by its initializer. Where processes are
+  forked (Linux), the workers write their trajectories' arrays into one shared memory map
+  and only a few hundred bytes a trajectory travel as messages: the trajectories here read
+  their arrays in place (views of that map, which lives as long as any of them).
 - ``"serial"``: in this process, one after the other.
 - a :class:`dask.distributed.Client`: the system is scattered to every worker once
   (``client.scatter(..., broadcast=True)``); chunks of samples are submitted as tasks.
@@ -173,8 +176,10 @@ class Ensemble:
     stats : dict
         ``wall_time`` (s, the whole sweep), ``executor`` (what ran it), ``workers``,
         ``chunks`` (tasks), ``system_bytes`` and ``system_transfers`` (the size of the
-        serialized system and how often it was sent), ``notes`` (e.g. that the model was
-        reduced automatically).
+        serialized system and how often it was sent), ``pipe_bytes`` (the results' bytes
+        that came back as messages) and, with local processes, ``shared_bytes`` (the
+        trajectories' arrays that came back through shared memory instead), ``notes`` (e.g.
+        that the model was reduced automatically).
 
     ``len(ens)`` is the number of samples; ``ens[i]`` the :class:`~daekit.Trajectory` of sample
     ``i`` (None when it failed); iterating gives the trajectories in order. With
@@ -895,7 +900,10 @@ def ensemble(
                 done_iter = as_completed(futs)
             n_done = 0
             for f in done_iter:
-                pairs = _load_results(f.result(), r, tg, block)
+                got = f.result()
+                stats["pipe_bytes"] = stats.get("pipe_bytes", 0) + len(
+                    got[0] if isinstance(got, tuple) else got)
+                pairs = _load_results(got, r, tg, block)
                 take(pairs)
                 n_done += len(pairs)
                 bar.update(n_done, failed)

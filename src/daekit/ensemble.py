@@ -51,6 +51,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import copyreg
 import hashlib
 import math
 import multiprocessing
@@ -469,12 +470,27 @@ class _BlockWriter:
         return False
 
 
+_RECEIVING = threading.local()  # .system, .grid: what the references resolve to while loading
+
+
+def _received_system():
+    return _RECEIVING.system
+
+
+def _received_grid():
+    if getattr(_RECEIVING, "grid", None) is None:
+        raise pickle.UnpicklingError("daekit.ensemble: a grid reference without the grid")
+    return _RECEIVING.grid
+
+
 class _SendPickler(pickle.Pickler):
     """Results of a worker: the system by reference (the receiver has it), the output grid by
     reference when given (every trajectory's times are the sweep's), trajectories as their
     state arrays and a recipe for the other columns
     (:func:`daekit.simulate.trajectory.compact_pickling`); arrays out of band through
-    ``buffer_callback`` when given."""
+    ``buffer_callback`` when given. The references go through a dispatch table of the two
+    types concerned (looked up in C), not ``persistent_id`` (a Python call for every object:
+    some 160 a trajectory)."""
 
     def __init__(self, file, system, grid=None, buffer_callback=None) -> None:
         super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL, buffer_callback=buffer_callback)
@@ -483,29 +499,22 @@ class _SendPickler(pickle.Pickler):
         if grid is not None:
             g = np.ascontiguousarray(grid, dtype=float)
             self.grid, self.grid_bits, self.grid_shape = g, g.view(np.int64), g.shape
+        table = dict(copyreg.dispatch_table)
+        table[type(system)] = self._reduce_system
+        if self.grid is not None:
+            table[np.ndarray] = self._reduce_array
+        self.dispatch_table = table
 
-    def persistent_id(self, obj):
+    def _reduce_system(self, obj):
         if obj is self.system:
-            return "daekit-system"
-        if (self.grid is not None and type(obj) is np.ndarray and obj.shape == self.grid_shape
-                and obj.dtype == np.float64 and obj.flags.c_contiguous
+            return (_received_system, ())
+        return obj.__reduce_ex__(pickle.HIGHEST_PROTOCOL)
+
+    def _reduce_array(self, obj):
+        if (obj.shape == self.grid_shape and obj.dtype == np.float64 and obj.flags.c_contiguous
                 and (obj is self.grid or np.array_equal(obj.view(np.int64), self.grid_bits))):
-            return "daekit-grid"  # the same bits: the receiver's own grid
-        return None
-
-
-class _ReceiveUnpickler(pickle.Unpickler):
-    def __init__(self, file, system, grid=None, buffers=None) -> None:
-        super().__init__(file, buffers=buffers)
-        self.system = system
-        self.grid = grid
-
-    def persistent_load(self, pid):
-        if pid == "daekit-system":
-            return self.system
-        if pid == "daekit-grid" and self.grid is not None:
-            return self.grid
-        raise pickle.UnpicklingError(f"daekit.ensemble: unknown reference {pid!r}")
+            return (_received_grid, ())  # the same bits: the receiver's own grid
+        return obj.__reduce_ex__(pickle.HIGHEST_PROTOCOL)
 
 
 def _dump_results(pairs: list, system, grid=None, writer: _BlockWriter | None = None):
@@ -538,7 +547,12 @@ def _load_results(blob, system, grid=None, block: _SharedBlock | None = None) ->
             raise RuntimeError("daekit.ensemble: results in a shared block that is not here")
         buffers = [block.view[o:o + n] for o, n in spans]
         block.used += sum(n for _, n in spans)
-    return _ReceiveUnpickler(io.BytesIO(blob), system, grid, buffers).load()
+    before = getattr(_RECEIVING, "system", None), getattr(_RECEIVING, "grid", None)
+    _RECEIVING.system, _RECEIVING.grid = system, grid
+    try:
+        return pickle.Unpickler(io.BytesIO(blob), buffers=buffers).load()  # noqa: S301
+    finally:
+        _RECEIVING.system, _RECEIVING.grid = before
 
 
 def _run_one(r, s: dict, job: dict) -> dict:

@@ -427,7 +427,8 @@ class _SharedBlock:
     out-of-band buffers) and sends through the pipe only the rest (a few hundred bytes a
     trajectory). This process reads the arrays in place: the trajectories' arrays are views of
     the map, which lives as long as any of them does. Measured on the 3D pendulum (1001
-    points): 72 KB of a trajectory's 73 KB go this way, none of it copied or unpickled here.
+    points): 72.1 KB a trajectory go this way and 0.5 KB as a message (129 KB through the
+    pipe before); taking in 25 of them costs this process 0.5 ms (2.0 ms before).
     """
 
     def __init__(self, size: int) -> None:

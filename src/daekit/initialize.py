@@ -268,7 +268,7 @@ class _SystemCache:
     position in ``w`` of every row of ``V`` that is a plain symbol."""
 
     def __init__(self, r) -> None:
-        nx, nz = r.nx, r.nz
+        nx = r.nx
         self._refs = (r.x, r.z, r.alg, r.invariants, r.variables, r.u, r.t)  # ids stay unique
         names = list(r.variables)
         exprs = list(r.variables.values())
@@ -282,19 +282,9 @@ class _SystemCache:
         self.row_of = {nm: i for i, nm in enumerate(names)}
         V = ca.vertcat(*[ca.SX(e) if not isinstance(e, ca.SX) else e for e in exprs]) \
             if exprs else ca.SX(0, 1)
-        W = ca.vertcat(r.x, r.z)
-        shared = system_jacobians(r)  # None where x, z are not plain symbols
-        if shared is None:  # substituted once
-            w = ca.SX.sym("w", nx + nz)
-            alg, inv, V = ca.substitute([ca.SX(r.alg), ca.SX(r.invariants), V], [W], [w])
-            self.alg = ca.vec(ca.densify(alg))
-            self.inv = ca.vec(ca.densify(inv)) if inv.numel() else ca.SX(0, 1)
-            # one Jacobian per block (CasADi's jacobian of the stacked rows costs more)
-            Jalg = ca.jacobian(self.alg, w)
-            Jinv = ca.jacobian(self.inv, w) if self.inv.numel() else None
-        else:  # the system's own Jacobians (made once, shared with its consistent points)
-            w = W
-            self.alg, self.inv, Jalg, Jinv = shared
+        # the system's own Jacobians (made once, shared with its consistent points)
+        sj = system_jacobians(r)
+        w, self.alg, self.inv, Jalg, Jinv = sj.w, sj.alg, sj.inv, sj.J_alg, sj.J_inv
         self.w = w
         self.V = ca.vec(ca.densify(V))
         self.args = [w, r.t, r.u, r.p]

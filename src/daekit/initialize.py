@@ -69,7 +69,7 @@ import scipy
 import scipy.sparse as sp
 
 from .errors import InitializationError
-from .numerics import FastFunction, equilibrate
+from .numerics import FastFunction, equilibrate, major_index
 from .points import system_jacobians
 from .threads import blas_threads, gc_paused, limit_blas_threads
 from .wording import count
@@ -1093,7 +1093,7 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
         start = int(colind[nx])
         z_colind = colind[nx:] - start
         ccs = (z_colind, row[start:], (shape[0], shape[1] - nx),
-               np.repeat(np.arange(shape[1] - nx, dtype=np.int64), np.diff(z_colind)))
+               major_index(z_colind))
 
         def afun(wv, *vals):
             c, Ja, *_ = sc.core_fun(wv, *vals)
@@ -1154,7 +1154,7 @@ def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int],
     of each nonzero)."""
     colind, row = pattern.get_ccs()
     colind = np.asarray(colind, dtype=np.int64)
-    col = np.repeat(np.arange(pattern.size2(), dtype=np.int64), np.diff(colind))
+    col = major_index(colind)
     return (colind, np.asarray(row, dtype=np.int64), (pattern.size1(), pattern.size2()), col)
 
 
@@ -1176,7 +1176,7 @@ def _stacked_ccs(patterns: list[ca.Sparsity]):
     row_all = np.empty(int(colind[-1]), dtype=np.int64)
     for d, r in zip(dest, rows, strict=True):
         row_all[d] = r
-    col_all = np.repeat(np.arange(ncol, dtype=np.int64), np.diff(colind))
+    col_all = major_index(colind)
     return (colind, row_all, (offset, ncol), col_all), dest
 
 
@@ -1678,7 +1678,7 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
         rowmax = np.asarray(A.max(axis=1).toarray()).ravel()
         if np.any(rowmax <= 0):
             return None
-        rows_of = np.repeat(np.arange(n_c), np.diff(A.indptr))
+        rows_of = major_index(A.indptr)
         penalty = np.array([np.log(1e2) if nm in fixed_set else 0.0 for nm in x_names])
         cost = np.log(rowmax[rows_of]) - np.log(A.data) + 1.0 + penalty[A.indices]
         B = sp.csr_matrix((cost, A.indices, A.indptr), shape=A.shape)

@@ -42,7 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import ModelError
-from .numerics import FastFunction, SparseFunction, equilibrate
+from .numerics import FastFunction, SparseFunction, equilibrate, major_index
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
@@ -340,7 +340,7 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
                                             [G, JG.nz[:] if JG.nnz() else ca.SX(0, 1)]))
             colind, row = JG.sparsity().get_ccs()
             rows = np.asarray(row, dtype=np.int64)
-            cols = np.repeat(np.arange(JG.shape[1]), np.diff(np.asarray(colind, dtype=np.int64)))
+            cols = major_index(colind)
             made = (fixed, both, (JG.shape, rows, cols))
         else:
             f = FastFunction(ca.Function("consistency", [model.t, Fx, W], [G]))
@@ -662,7 +662,7 @@ class _CscOps:
     def __init__(self, J: sp.csc_matrix) -> None:
         self.shape = J.shape
         self.indptr, self.indices = J.indptr, J.indices
-        self.cols = np.repeat(np.arange(J.shape[1]), np.diff(J.indptr))
+        self.cols = major_index(J.indptr)
         self.perm = np.argsort(J.indices, kind="stable")  # nonzeros in row order
         rows = J.indices[self.perm]
         first = np.ones(rows.size, dtype=bool)
@@ -677,8 +677,7 @@ class _CscOps:
 
     def cols_of(self, J) -> np.ndarray:
         """The column of each nonzero of ``J``."""
-        return self.cols if self.same(J) else np.repeat(np.arange(J.shape[1]),
-                                                        np.diff(J.indptr))
+        return self.cols if self.same(J) else major_index(J.indptr)
 
     def row_max(self, J, data: np.ndarray) -> np.ndarray:
         """Largest ``|data|`` of each row of ``J``'s pattern (NaN and inf as 0)."""
@@ -838,7 +837,7 @@ def _band_solver(A: sp.csc_matrix, mu: float):
         inv = np.empty(m, dtype=np.int64)
         inv[perm] = np.arange(m)
         pr = inv[A.indices]
-        pc = inv[np.repeat(np.arange(m), np.diff(A.indptr))]
+        pc = inv[major_index(A.indptr)]
         low = pr >= pc
         width = int((pr - pc)[low].max(initial=0))
         hit = (key, perm, width, (pr - pc)[low], pc[low], np.nonzero(low)[0])

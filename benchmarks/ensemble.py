@@ -266,7 +266,8 @@ def main() -> None:
           "speedup: hand loop / processes. estimate: the load-independent speedup on 2 idle "
           "cores, hand CPU / max(worker CPU in the samples / 2, this process's "
           "CPU). bound: the same with all the work counted, hand CPU / ((the workers' CPU "
-          "over their whole life + this process's CPU) / 2): no idle machine does better. "
+          "over their whole life + this process's CPU) / 2): the most 2 cores could give at the "
+          "CPU costs of that round (which other jobs inflate, through the shared caches). "
           "others: CPU of other processes while the row ran (for the hand loop, the larger "
           "of its two runs).")
 

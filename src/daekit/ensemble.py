@@ -865,9 +865,6 @@ def ensemble(
             n_workers = max(1, min(_cpu_count(), len(samp)))
             chunks = _make_chunks(indexed, chunksize, n_workers)
             ctx = multiprocessing.get_context()
-            if ctx.get_start_method() == "fork" and payload_job["keep"] == "trajectory":
-                # the trajectories' arrays come back through memory the workers inherit
-                block, regions = _shared_block_for(r, tg.size, chunks)
             if ctx.get_start_method() == "fork" and key not in _SYSTEMS:
                 # forked workers inherit the system as it is here, with whatever it has built
                 # already (initialize's and simulate's functions): no unpickling, no warm-up;
@@ -881,6 +878,10 @@ def ensemble(
             single_blas.enter_context(blas_threads(1))
             own = ex = ProcessPoolExecutor(n_workers, mp_context=ctx, initializer=_install,
                                            initargs=(key, blob))
+            if ctx.get_start_method() == "fork" and payload_job["keep"] == "trajectory":
+                # the trajectories' arrays come back through memory the workers inherit (they
+                # are forked at the first submit, below)
+                block, regions = _shared_block_for(r, tg.size, chunks)
             stats.update(executor="processes", workers=n_workers)
         elif _is_dask_client(ex):
             stats.update(executor=f"dask ({getattr(ex.scheduler, 'address', '?')})",

@@ -406,7 +406,15 @@ def _run_chunk(key: str, blob: bytes | None, payload: bytes):
         # one BLAS thread while the samples run (a no-op in daekit's own workers, which have
         # one already): the workers share the cores, and more threads only compete for them
         with blas_threads(1):
-            pairs = [(i, _run_one(r, s, job)) for i, s in job["samples"]]
+            # the trajectories are kept for the chunk's result anyway: their invariants and
+            # rows after the chunk's samples, in one loop whose code and data stay in the cache
+            # (measured on the 3D pendulum: 0.07-0.09 ms a sample instead of 0.17-0.23 ms
+            # between samples); with keep="summary" sample by sample, holding none
+            batch = job["keep"] == "trajectory"
+            pairs = [(i, _run_one(r, s, job, finish=not batch)) for i, s in job["samples"]]
+            if batch:
+                for _, out in pairs:
+                    _finish_one(out, job)
         region = job.get("shared")
         block = _BLOCKS.get(region[0]) if region else None
         if block is None:
@@ -556,8 +564,9 @@ def _load_results(blob, system, grid=None, block: _SharedBlock | None = None) ->
         _RECEIVING.system, _RECEIVING.grid = before
 
 
-def _run_one(r, s: dict, job: dict) -> dict:
-    """initialize + simulate one sample; errors are recorded, never raised."""
+def _run_one(r, s: dict, job: dict, finish: bool = True) -> dict:
+    """initialize + simulate one sample; errors are recorded, never raised. ``finish=False``
+    leaves the row's invariants, steps and ``reduce`` columns to :func:`_finish_one`."""
     from .initialize import initialize
     from .simulate import simulate
 
@@ -583,6 +592,19 @@ def _run_one(r, s: dict, job: dict) -> dict:
                    wall_time=time.perf_counter() - w0, cpu_time=time.process_time() - c0)
         return out
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    out["trajectory"], out["times"] = traj, (wall, cpu)
+    if finish:
+        _finish_one(out, job)
+    return out
+
+
+def _finish_one(out: dict, job: dict) -> None:
+    """The row of a simulated sample (max |invariant|, steps, times, the ``reduce`` columns);
+    the trajectory dropped unless kept."""
+    if "times" not in out:  # failed: its row is complete
+        return
+    traj, row = out["trajectory"], out["row"]
+    wall, cpu = out.pop("times")
     maxinv = traj.max_invariant()
     row.update(success=True, error="",
                max_invariant=max(maxinv.values()) if maxinv else 0.0)
@@ -599,9 +621,8 @@ def _run_one(r, s: dict, job: dict) -> dict:
         except Exception as exc:  # noqa: BLE001 - recorded like a failure
             out["error"] = f"reduce(traj) raised {type(exc).__name__}: {exc}"
             row.update(success=False, error=out["error"])
-    if job["keep"] == "trajectory":
-        out["trajectory"] = traj
-    return out
+    if job["keep"] != "trajectory":
+        del out["trajectory"]
 
 
 def _plain_value(v):

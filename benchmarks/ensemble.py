@@ -218,7 +218,8 @@ def main() -> None:
           f"{1e3 * c_sim:.2f} ms CPU")
     print(f"the {n} samples' simulate calls alone (initial values made beforehand): "
           f"{t_sims:.2f} s wall, {c_sims:.2f} s CPU, {1e3 * c_sims / n:.2f} ms CPU per sample")
-    print(f"best of {rounds} rounds:")
+    print(f"best of {rounds} rounds (each row's best, from different rounds: its speedup column "
+          f"is indicative only; the verdict uses the round-by-round ratios below):")
     print(f"{'':<46} {'wall [s]':>9} {'wall/sample':>12} {'speedup':>8} "
           f"{'CPU/sample':>11} {'here CPU':>9} {'identical':>9}")
     for name, wall, cpu_s, ident, here in rows:

@@ -206,7 +206,7 @@ def verdict(ratios: dict, chain: float | None) -> None:
         return
     print("\nverdict (issue 8's targets; CPU time over the hand form, median over the "
           f"{K_STARTS} perturbed starts; the exact start's in brackets)")
-    tols = sorted({k[1] for k in ratios}, reverse=True)
+    tols = sorted({k[1] for k in ratios})
     grids = sorted({k[2] for k in ratios})
 
     def line(ok, text):

@@ -151,3 +151,35 @@ def test_analyze_plot(tmp_path, capsys):
     png = tmp_path / "sigma.png"
     assert main(["analyze", "pendulum3d", "--plot", str(png)]) == 0
     assert png.stat().st_size > 5000
+
+
+SCRIPT_FILE = textwrap.dedent('''
+    import casadi as ca
+    import daekit as dk
+
+    m = dk.Model("planar")
+    p = m.state("p", 2); v = m.state("v", 2); lam = m.algebraic("lam")
+    m.equation(m.der(p) == v, name="kin")
+    m.equation(m.der(v) == -lam * p - ca.vertcat(0, 9.81), name="newton")
+    m.equation(ca.dot(p, p) == 1, name="rod")
+''')
+
+
+@pytest.mark.parametrize("tail, target", [
+    ("", ""),                       # the one model the script builds at top level
+    ("model = m\n", ""),            # a variable named model (not a function)
+    ("other = 3\n", ":m"),          # a model named explicitly
+])
+def test_a_script_that_builds_its_model_at_top_level(tmp_path, capsys, tail, target):
+    f = tmp_path / "script.py"
+    f.write_text(SCRIPT_FILE + tail)
+    assert main(["analyze", f"{f}{target}", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["index"] == 3 and d["dof"] == 2
+
+
+def test_a_script_with_two_models_asks_which(tmp_path, capsys):
+    f = tmp_path / "two.py"
+    f.write_text(SCRIPT_FILE + "m2 = dk.examples.pendulum3d()\n")
+    assert main(["analyze", str(f)]) == 2
+    assert "models: m, m2 (name one:" in capsys.readouterr().err

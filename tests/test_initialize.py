@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 import daekit as dk
-from daekit.errors import InitializationError
+from daekit.errors import InitializationError, ModelError
 from daekit.examples.exact import planar_chain_hanging, planar_chain_rotating
 from daekit.initialize import initialize
 from daekit.reduced import ReducedDAE
@@ -296,3 +296,13 @@ def test_bad_fixed_and_guess_types():
         dk.initialize(r, fixed=[1, 2])
     with pytest.raises(dk.InitializationError, match="must be a number or a list of numbers"):
         dk.initialize(r, fixed={"p": "abc"})
+
+
+def test_a_system_whose_input_is_not_a_symbol_is_named():
+    """A hand-built system with an expression where a symbol belongs: a ModelError naming the
+    element (not CasADi's "Xfunction input arguments must be purely symbolic")."""
+    t, x, z, u = ca.SX.sym("t"), ca.SX.sym("x"), ca.SX.sym("z"), ca.SX.sym("u")
+    r = ReducedDAE(t, x, z, ca.vertcat(u, ca.SX(0)), ca.SX(0, 1), z, z - x + u, ca.SX(0, 1), [],
+                   ["x"], ["z"], ["u", "gain"], [], np.zeros(0), {"x": x, "z": z})
+    with pytest.raises(ModelError, match=r"input 'gain' is the expression 0"):
+        initialize(r, guess={"x": 1.0})

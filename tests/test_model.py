@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import daekit as dk
+from daekit.errors import ModelError
 from daekit.model import parse_name
 
 
@@ -201,3 +202,32 @@ def test_equation_without_unknowns_is_named():
     assert "the equations 'b' involve no unknowns" in str(err.value)
     assert "only the unknowns ," not in str(err.value)
     assert err.value.overdetermined_equations == ["b"]
+
+
+def test_equations_written_with_double_equals_are_residuals():
+    """``m.equation(lhs == rhs)`` means ``lhs - rhs == 0`` (CasADi's ``==`` alone is a 0/1
+    comparison: evaluated as a residual it is 0 wherever lhs != rhs, and the planar pendulum
+    written so was analysed as having solutions everywhere)."""
+    m = dk.Model("pendulum")
+    p = m.state("p", 2)
+    v = m.state("v", 2)
+    lam = m.algebraic("lam")
+    m.equation(m.der(p) == v, name="kinematics")
+    m.equation(m.der(v) == -lam * p - ca.vertcat(0, 9.81), name="newton")
+    m.equation(ca.dot(p, p) == 1, name="rod")
+    assert ca.is_equal(ca.simplify(m.residual[4] - (ca.dot(p, p) - 1)), ca.SX(0))
+    a = dk.analyze(m)
+    assert (a.index, a.dof) == (3, 2)
+    x = m.state("x")
+    with pytest.raises(ModelError, match=r"equation 'cap' is a comparison \(<=\)"):
+        m.equation(x <= 1, name="cap")
+    with pytest.raises(ModelError, match=r"'both\[1\]' is a comparison \(<\)"):
+        m.equation(ca.vertcat(x == 1, x < 2), name="both")
+
+
+def test_a_long_vector_equation_with_double_equals():
+    """Vectors beyond the 1024-element scan are probed; ``v == w`` compares every element."""
+    m = dk.Model("long")
+    x = m.state("x", 3000)
+    m.equation(m.der(x) == -x, name="decay")
+    assert ca.is_equal(m.residual[2999], m.der(x)[2999] + x[2999], 1)

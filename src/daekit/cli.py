@@ -22,8 +22,10 @@ __all__ = ["main", "load_target"]
 
 
 def load_target(spec: str):
-    """Load ``FILE.py[:FUNCTION]`` (default function ``model``) or a built-in example name and
-    return what the function returns."""
+    """Load ``FILE.py[:NAME]`` or a built-in example name: what the function ``NAME``
+    (default ``model``) returns, or ``NAME`` itself where it is a Model (or ReducedDAE,
+    Lagrangian system); without ``:NAME`` and without a ``model``, the one model the file
+    builds at top level."""
     from . import examples
 
     path_part, _, func = spec.partition(":")
@@ -40,6 +42,7 @@ def load_target(spec: str):
     path = Path(path_part)
     if not path.is_file():
         raise ModelError(f"no such file: {path}")
+    explicit = bool(func)
     func = func or "model"
     mod_spec = importlib.util.spec_from_file_location(f"daekit_user_{path.stem}", path)
     module = importlib.util.module_from_spec(mod_spec)
@@ -57,9 +60,24 @@ def load_target(spec: str):
                          f"{type(exc).__name__}: {exc}") from None
     finally:
         sys.path.pop(0)
+    from .model import Model
+    from .reduced import ReducedDAE
+
+    def is_model(v) -> bool:
+        return isinstance(v, (Model, ReducedDAE)) or hasattr(v, "index1")  # or a Lagrangian
     if not hasattr(module, func):
+        found = [n for n, v in vars(module).items() if not n.startswith("_") and is_model(v)]
+        if not explicit and len(found) == 1:  # a script that builds one model at top level
+            return getattr(module, found[0])
         funcs = [n for n in dir(module) if callable(getattr(module, n)) and not n.startswith("_")]
-        raise ModelError(f"{path} has no function {func!r} (it has: {', '.join(funcs) or 'none'})")
+        models = f"; models: {', '.join(found)} (name one: {path}:NAME)" if found else ""
+        raise ModelError(f"{path} has no function {func!r} (it has: {', '.join(funcs) or 'none'}"
+                         f"{models})")
+    if not callable(getattr(module, func)):
+        if is_model(getattr(module, func)):  # model = m: the object itself
+            return getattr(module, func)
+        raise ModelError(f"{path}: {func!r} is a {type(getattr(module, func)).__name__}, not a "
+                         "function returning a model or a daekit Model")
     try:
         return getattr(module, func)()
     except DaekitError as exc:

@@ -69,7 +69,7 @@ import scipy
 import scipy.sparse as sp
 
 from .errors import InitializationError
-from .numerics import FastFunction, equilibrate
+from .numerics import FastFunction, equilibrate, major_index
 from .points import system_jacobians
 from .threads import blas_threads, gc_paused, limit_blas_threads
 from .wording import count
@@ -268,7 +268,7 @@ class _SystemCache:
     position in ``w`` of every row of ``V`` that is a plain symbol."""
 
     def __init__(self, r) -> None:
-        nx, nz = r.nx, r.nz
+        nx = r.nx
         self._refs = (r.x, r.z, r.alg, r.invariants, r.variables, r.u, r.t)  # ids stay unique
         names = list(r.variables)
         exprs = list(r.variables.values())
@@ -282,19 +282,9 @@ class _SystemCache:
         self.row_of = {nm: i for i, nm in enumerate(names)}
         V = ca.vertcat(*[ca.SX(e) if not isinstance(e, ca.SX) else e for e in exprs]) \
             if exprs else ca.SX(0, 1)
-        W = ca.vertcat(r.x, r.z)
-        shared = system_jacobians(r)  # None where x, z are not plain symbols
-        if shared is None:  # substituted once
-            w = ca.SX.sym("w", nx + nz)
-            alg, inv, V = ca.substitute([ca.SX(r.alg), ca.SX(r.invariants), V], [W], [w])
-            self.alg = ca.vec(ca.densify(alg))
-            self.inv = ca.vec(ca.densify(inv)) if inv.numel() else ca.SX(0, 1)
-            # one Jacobian per block (CasADi's jacobian of the stacked rows costs more)
-            Jalg = ca.jacobian(self.alg, w)
-            Jinv = ca.jacobian(self.inv, w) if self.inv.numel() else None
-        else:  # the system's own Jacobians (made once, shared with its consistent points)
-            w = W
-            self.alg, self.inv, Jalg, Jinv = shared
+        # the system's own Jacobians (made once, shared with its consistent points)
+        sj = system_jacobians(r)
+        w, self.alg, self.inv, Jalg, Jinv = sj.w, sj.alg, sj.inv, sj.J_alg, sj.J_inv
         self.w = w
         self.V = ca.vec(ca.densify(V))
         self.args = [w, r.t, r.u, r.p]
@@ -1103,7 +1093,7 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
         start = int(colind[nx])
         z_colind = colind[nx:] - start
         ccs = (z_colind, row[start:], (shape[0], shape[1] - nx),
-               np.repeat(np.arange(shape[1] - nx, dtype=np.int64), np.diff(z_colind)))
+               major_index(z_colind))
 
         def afun(wv, *vals):
             c, Ja, *_ = sc.core_fun(wv, *vals)
@@ -1164,7 +1154,7 @@ def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int],
     of each nonzero)."""
     colind, row = pattern.get_ccs()
     colind = np.asarray(colind, dtype=np.int64)
-    col = np.repeat(np.arange(pattern.size2(), dtype=np.int64), np.diff(colind))
+    col = major_index(colind)
     return (colind, np.asarray(row, dtype=np.int64), (pattern.size1(), pattern.size2()), col)
 
 
@@ -1186,7 +1176,7 @@ def _stacked_ccs(patterns: list[ca.Sparsity]):
     row_all = np.empty(int(colind[-1]), dtype=np.int64)
     for d, r in zip(dest, rows, strict=True):
         row_all[d] = r
-    col_all = np.repeat(np.arange(ncol, dtype=np.int64), np.diff(colind))
+    col_all = major_index(colind)
     return (colind, row_all, (offset, ncol), col_all), dest
 
 
@@ -1688,7 +1678,7 @@ def _sparse_free_redundant(J, n_alg, n_inv, nx, x_names, fixed_names):
         rowmax = np.asarray(A.max(axis=1).toarray()).ravel()
         if np.any(rowmax <= 0):
             return None
-        rows_of = np.repeat(np.arange(n_c), np.diff(A.indptr))
+        rows_of = major_index(A.indptr)
         penalty = np.array([np.log(1e2) if nm in fixed_set else 0.0 for nm in x_names])
         cost = np.log(rowmax[rows_of]) - np.log(A.data) + 1.0 + penalty[A.indices]
         B = sp.csr_matrix((cost, A.indices, A.indptr), shape=A.shape)

@@ -47,7 +47,7 @@ import scipy.sparse as sp
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
            "sparse_rank_deficiency", "sparse_deficiency_rcond", "to_scipy", "SparseFunction",
-           "FastFunction", "redundant_rows", "VANISH", "vanishing_removed"]
+           "FastFunction", "redundant_rows", "VANISH", "vanishing_removed", "major_index"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -67,6 +67,17 @@ ROW_NOISE = 1e-20
 DENSE_EQUILIBRATE = 40000
 #: Curtis--Reid's normal equations up to this size (rows plus columns) are solved densely.
 DENSE_CR = 150
+
+
+def major_index(indptr) -> np.ndarray:
+    """The column of each nonzero of a CSC matrix (the row of each of a CSR one) from its
+    ``indptr``, as int64: the one place for ``repeat(arange, diff(indptr))``.
+
+    >>> major_index(np.array([0, 2, 2, 3])).tolist()
+    [0, 0, 2]
+    """
+    indptr = np.asarray(indptr, dtype=np.int64)
+    return np.repeat(np.arange(indptr.size - 1, dtype=np.int64), np.diff(indptr))
 
 
 def equilibrate(A) -> tuple[np.ndarray, np.ndarray]:
@@ -421,7 +432,7 @@ def equilibrated(A):
     dr, dc = equilibrate(A)
     if sp.issparse(A):  # the factors placed on the nonzeros (no sparse products)
         A = sp.csc_matrix(A)
-        cols = np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))
+        cols = major_index(A.indptr)
         return sp.csc_matrix((A.data * dr[A.indices] * dc[cols], A.indices, A.indptr),
                              shape=A.shape)
     return np.asarray(A, dtype=float) * dr[:, None] * dc[None, :]
@@ -803,6 +814,6 @@ class SparseFunction:
         out = np.zeros(self.shape)
         if self.indices.size:
             if not hasattr(self, "_cols"):
-                self._cols = np.repeat(np.arange(self.shape[1]), np.diff(self.indptr))
+                self._cols = major_index(self.indptr)
             out[self.indices, self._cols] = self.values(*args)
         return out

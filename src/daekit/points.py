@@ -35,18 +35,19 @@ from __future__ import annotations
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
 from .errors import ModelError
-from .numerics import FastFunction, SparseFunction, equilibrate
+from .numerics import FastFunction, SparseFunction, equilibrate, major_index
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
            "gauss_newton", "in_jacobian_units", "reduced_consistent_point", "remember_consistent",
-           "reduced_point_functions", "system_jacobians", "DRAWS"]
+           "reduced_point_functions", "system_jacobians", "SystemJacobians", "DRAWS"]
 
 #: Distributions of the random values, tried in this order (until the Jacobians are finite).
 DRAWS = (("uniform", 0.1, 0.3), ("uniform", 0.5, 1.5), ("normal", 0.0, 1.0),
@@ -339,7 +340,7 @@ def _solve(pt: TestPoint, G: ca.SX, syms: list, max_iter: int, tol: float,
                                             [G, JG.nz[:] if JG.nnz() else ca.SX(0, 1)]))
             colind, row = JG.sparsity().get_ccs()
             rows = np.asarray(row, dtype=np.int64)
-            cols = np.repeat(np.arange(JG.shape[1]), np.diff(np.asarray(colind, dtype=np.int64)))
+            cols = major_index(colind)
             made = (fixed, both, (JG.shape, rows, cols))
         else:
             f = FastFunction(ca.Function("consistency", [model.t, Fx, W], [G]))
@@ -661,7 +662,7 @@ class _CscOps:
     def __init__(self, J: sp.csc_matrix) -> None:
         self.shape = J.shape
         self.indptr, self.indices = J.indptr, J.indices
-        self.cols = np.repeat(np.arange(J.shape[1]), np.diff(J.indptr))
+        self.cols = major_index(J.indptr)
         self.perm = np.argsort(J.indices, kind="stable")  # nonzeros in row order
         rows = J.indices[self.perm]
         first = np.ones(rows.size, dtype=bool)
@@ -676,8 +677,7 @@ class _CscOps:
 
     def cols_of(self, J) -> np.ndarray:
         """The column of each nonzero of ``J``."""
-        return self.cols if self.same(J) else np.repeat(np.arange(J.shape[1]),
-                                                        np.diff(J.indptr))
+        return self.cols if self.same(J) else major_index(J.indptr)
 
     def row_max(self, J, data: np.ndarray) -> np.ndarray:
         """Largest ``|data|`` of each row of ``J``'s pattern (NaN and inf as 0)."""
@@ -837,7 +837,7 @@ def _band_solver(A: sp.csc_matrix, mu: float):
         inv = np.empty(m, dtype=np.int64)
         inv[perm] = np.arange(m)
         pr = inv[A.indices]
-        pc = inv[np.repeat(np.arange(m), np.diff(A.indptr))]
+        pc = inv[major_index(A.indptr)]
         low = pr >= pc
         width = int((pr - pc)[low].max(initial=0))
         hit = (key, perm, width, (pr - pc)[low], pc[low], np.nonzero(low)[0])
@@ -921,73 +921,84 @@ def reduced_point_functions(r) -> tuple:
     >>> jac(0.0, np.zeros(0), np.ones(5), r.p_values).shape
     (3, 5)
     """
-    return r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, None))
+    return r.derived("reduced_point_functions", _reduced_point_functions)
 
 
-def system_jacobians(r) -> tuple | None:
-    """``(alg, inv, J_alg, J_inv)`` of the ReducedDAE ``r``: ``alg`` and the invariants as
-    dense columns and their symbolic Jacobians with respect to ``w = (x, z)`` (``J_inv`` None
-    without invariants), made once per system and shared by the consistent points
-    (:func:`reduced_point_functions`) and :func:`daekit.initialize`; None where ``x`` and
-    ``z`` are not plain symbols.
+class SystemJacobians(NamedTuple):
+    """``[alg; invariants]`` of a ReducedDAE as dense columns and their Jacobians with
+    respect to ``w = (x, z)``: see :func:`system_jacobians`."""
+
+    w: ca.SX
+    alg: ca.SX
+    inv: ca.SX  # 0 x 1 without invariants
+    J_alg: ca.SX
+    J_inv: ca.SX | None  # None without invariants
+
+
+def system_jacobians(r) -> SystemJacobians:
+    """``[alg; invariants]`` of the ReducedDAE ``r`` as dense columns and their symbolic
+    Jacobians with respect to ``w = (x, z)`` (``J_inv`` None without invariants), made once
+    per system and shared by the consistent points (:func:`reduced_point_functions`) and
+    :func:`daekit.initialize`. A system whose ``t``, ``x``, ``z``, ``u`` or ``p`` are not
+    distinct plain symbols is a :class:`~daekit.errors.ModelError` naming the first culprit.
 
     >>> import daekit as dk
     >>> r = dk.reduce_index(dk.examples.pendulum_planar())
-    >>> alg, inv, Ja, Ji = system_jacobians(r)
-    >>> Ja.shape, Ji.shape
+    >>> sj = system_jacobians(r)
+    >>> sj.J_alg.shape, sj.J_inv.shape
     ((1, 5), (2, 5))
     """
     return r.derived("system_jacobians", _system_jacobians)
 
 
-def _system_jacobians(r) -> tuple | None:
+def _system_jacobians(r) -> SystemJacobians:
     w = ca.vertcat(r.x, r.z)
+    for what, v, names in (("state", r.x, r.x_names), ("algebraic unknown", r.z, r.z_names),
+                           ("input", r.u, r.u_names), ("parameter", r.p, r.p_names),
+                           ("time", r.t, ["t"])):
+        if v.numel() and not v.is_valid_input():
+            raise ModelError(_not_plain(what, v, names))
     if w.numel() and not w.is_valid_input():
-        return None
+        raise ModelError("the system's states and algebraic unknowns must be distinct symbols; "
+                         "one symbol is both")
     alg = ca.vec(ca.densify(ca.SX(r.alg)))
     inv = ca.vec(ca.densify(ca.SX(r.invariants))) if r.invariants.numel() else ca.SX(0, 1)
     # one Jacobian per block (CasADi's jacobian of the stacked rows costs more than both)
     Ja = ca.jacobian(alg, w)
     Ji = ca.jacobian(inv, w) if inv.numel() else None
-    return alg, inv, Ja, Ji
+    return SystemJacobians(w, alg, inv, Ja, Ji)
 
 
-def _reduced_point_functions(r, jac_alg: ca.SX | None):
+def _not_plain(what: str, v: ca.SX, names) -> str:
+    """The message for a ``what`` vector ``v`` that is not distinct plain symbols."""
+    seen = set()
+    for i, e in enumerate(ca.vertsplit(v)):
+        name = names[i] if i < len(names) else f"element {i}"
+        if not e.is_symbolic():
+            return (f"the system's {what} {name!r} is the expression {e} where a plain CasADi "
+                    f"symbol is needed; make it a symbol (ca.SX.sym) and state the relation "
+                    f"as an equation")
+        h = e.element_hash()
+        if h in seen:
+            return f"the system's {what} {name!r} repeats a symbol used before it; each needs its own"
+        seen.add(h)
+    return f"the system's {what}s are not plain CasADi symbols"
+
+
+def _reduced_point_functions(r):
     """The functions of :func:`reduced_consistent_point` for ``r`` (made once per system):
     ``(f, jac)`` of ``G = [alg; invariants]`` in ``(t, u, w, p)``."""
-    n = r.nx + r.nz
-    w = ca.vertcat(r.x, r.z)
-    t_s, u_s, p_s = r.t, r.u, r.p
-    shared = None
-    if w.is_valid_input() and ca.vertcat(t_s, u_s, p_s).is_valid_input():
-        shared = system_jacobians(r)
-    if shared is not None:
-        alg, inv, Ja, Ji = shared
-        if jac_alg is not None:  # the caller's d alg / dw (of the system's own symbols)
-            Ja = jac_alg
-        G = ca.vertcat(alg, inv)
-        J = ca.vertcat(Ja, Ji) if Ji is not None else Ja
-        f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
-        fj = SparseFunction([t_s, u_s, w, p_s], J)
-        return f, (fj.dense if _is_dense(n, G.numel()) else fj.csc)
-    alg = ca.vec(ca.SX(r.alg))
-    inv = ca.vec(ca.SX(r.invariants)) if r.invariants.numel() else ca.SX(0, 1)
-    # x, z (or t, u, p) not plain symbols: new symbols substituted once
-    w, t_s, u_s, p_s = (ca.SX.sym("w", n), ca.SX.sym("t"), ca.SX.sym("u", r.nu),
-                        ca.SX.sym("p", r.n_p))
-    alg, inv = ca.substitute([alg, inv], [r.t, ca.vertcat(r.x, r.z), r.u, r.p],
-                             [t_s, w, u_s, p_s])
-    G = ca.vertcat(alg, inv)
-    # the parameters at their values are an input (no substitution into the expressions)
-    Ja = ca.jacobian(alg, w)
-    J = ca.vertcat(Ja, ca.jacobian(inv, w)) if inv.numel() else Ja
-    f = FastFunction(ca.Function("g", [t_s, u_s, w, p_s], [G]))
-    fj = SparseFunction([t_s, u_s, w, p_s], J)
-    return f, (fj.dense if _is_dense(n, G.numel()) else fj.csc)
+    sj = system_jacobians(r)
+    args = [r.t, r.u, sj.w, r.p]
+    G = ca.vertcat(sj.alg, sj.inv)
+    J = ca.vertcat(sj.J_alg, sj.J_inv) if sj.J_inv is not None else sj.J_alg
+    f = FastFunction(ca.Function("g", args, [G]))
+    fj = SparseFunction(args, J)
+    return f, (fj.dense if _is_dense(r.nx + r.nz, G.numel()) else fj.csc)
 
 
 def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: int = 5,
-                             jac_alg: ca.SX | None = None, remembered: bool = False):
+                             remembered: bool = False):
     """A point ``(t, x, z, u, p)`` of a ReducedDAE where ``alg = 0`` and every invariant
     holds (time and inputs random, parameters at their values), or None when Gauss--Newton
     finds none from ``starts`` random starts. ``remembered``: first from the consistent point
@@ -1003,7 +1014,7 @@ def reduced_consistent_point(r, seed: int = 0, t: float | None = None, starts: i
     """
     rng = np.random.default_rng(seed + 31)
     n = r.nx + r.nz
-    f, jac = r.derived("reduced_point_functions", lambda r: _reduced_point_functions(r, jac_alg))
+    f, jac = reduced_point_functions(r)
     pv = np.asarray(r.p_values, dtype=float)
     start = _remembered_start(r) if remembered and t is None else None
     if start is not None:

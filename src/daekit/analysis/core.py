@@ -683,11 +683,18 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             why["unknown"] = (f"no consistent point of its derivative array to level "
                               f"{max_index} was found")
         return None
+    if consistent_at and not all(consistent_at.values()):
+        # ranks off the solutions: say so first (x^2 + 1 = 0 stalls where 2 x = 0)
+        where = ("no point satisfying the equations and their derivatives was found (the "
+                 "equations may have no real solution, or only singular ones); give a "
+                 "consistent point (point=...) if there is one")
+    else:
+        where = ("the model may be singular (not uniquely solvable) at the test point; try "
+                 "another point (point=...)")
     raise ModelError(
         f"model {model.name!r}: {what}: the derivative array up to level {max_index} does not "
         f"determine all derivatives of the equations {listing([eq_names[i] for i in rows], 6)}; "
-        "the model may be singular (not uniquely solvable) at the test point; try another "
-        "point (point=...)"
+        + where
     )
 
 
@@ -1297,10 +1304,14 @@ def _describe_points(model: Model, status, names: list[str]) -> str:
                 + (f" in {', '.join(worst)}" if worst else "") + ") and the values you gave "
                 "admit no consistent completion; the numeric results hold there, not "
                 "necessarily on the solutions")
-    return ("at a RANDOM point: no consistent point was found (Gauss-Newton left a relative "
-            f"residual of {status.residual:.1e}" + (f" in {', '.join(worst)}" if worst else "")
-            + "); the numeric results may not hold on the solutions -- give a consistent "
-            "point=")
+    where = f" in {', '.join(worst)}" if worst else ""
+    if status.residual > 1.0:  # larger than the rows' own terms: their derivatives vanish
+        left = (f"Gauss-Newton stalled where the derivatives of the equations{where} vanish, "
+                "their residual larger than their terms: they may have no real solution")
+    else:
+        left = f"Gauss-Newton left a relative residual of {status.residual:.1e}{where}"
+    return (f"at a RANDOM point: no consistent point was found ({left}); the numeric results "
+            "may not hold on the solutions -- give a consistent point=")
 
 
 def _definitions(model: Model) -> list[int]:

@@ -64,6 +64,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
+from ..model import comparison_parts
 from ..reduced import ReducedDAE
 from ..wording import count
 from .compiled import Problem, compile_problem
@@ -291,12 +292,14 @@ class OCP:
         if integral is None and final is None:
             raise OCPError("ocp.minimize(): give an integral (Lagrange) and/or final (Mayer) term")
         if integral is not None:
-            e = self._aug.map_expr(integral, "the integral objective")
+            e = _no_comparison(self._aug.map_expr(integral, "the integral objective"),
+                               "the integral objective")
             if e.numel() != 1:
                 raise OCPError(f"the integral objective must be a scalar, got {e.numel()} elements")
             self._lagrange_user = e
         if final is not None:
-            e = self._aug.map_expr(final, "the final objective")
+            e = _no_comparison(self._aug.map_expr(final, "the final objective"),
+                               "the final objective")
             if e.numel() != 1:
                 raise OCPError(f"the final objective must be a scalar, got {e.numel()} elements")
             self._mayer_user = e
@@ -325,9 +328,27 @@ class OCP:
         return self
 
     def constrain(self, expr, lb=-np.inf, ub=np.inf, name: str | None = None) -> OCP:
-        """Path constraint ``lb <= expr <= ub`` at every collocation point (and at ``t = 0``)."""
+        """Path constraint ``lb <= expr <= ub`` at every collocation point (and at ``t = 0``).
+        ``expr`` may instead be a condition, ``ocp.constrain(ca.dot(p, p) <= 4)`` (``>=``,
+        ``==``, and ``<``, ``>`` taken as ``<=``, ``>=``), element by element, with ``lb`` and
+        ``ub`` left out.
+
+        >>> import casadi as ca, daekit as dk
+        >>> m = dk.examples.pendulum_planar()
+        >>> x = m.variables["x"].sym
+        >>> ocp = dk.OCP(m, t_final=1.0).constrain(x >= -0.5, name="wall")
+        """
         label = name or f"path constraint #{len(self._path_user) + 1}"
         e = self._aug.map_expr(expr, f"ocp.constrain ({label})")
+        parts = comparison_parts(e)
+        if parts is not None:
+            if np.any(np.isfinite(np.asarray(lb, dtype=float))) or np.any(
+                    np.isfinite(np.asarray(ub, dtype=float))):
+                raise OCPError(
+                    f"ocp.constrain ({label}): give either a condition (x <= 1) or an expression "
+                    "with bounds (x, lb, ub), not both"
+                )
+            e, lb, ub = _condition_bounds(parts, f"ocp.constrain ({label})")
         lb_ = _vec(lb, e.numel(), f"ocp.constrain ({label}) lb")
         ub_ = _vec(ub, e.numel(), f"ocp.constrain ({label}) ub")
         if np.any(lb_ > ub_):
@@ -557,3 +578,43 @@ class OCP:
         return sol
 
 
+
+
+def _no_comparison(e: ca.SX, what: str) -> ca.SX:
+    """``e``, or an :class:`OCPError` where it is a comparison (a 0/1 value, no objective)."""
+    parts = comparison_parts(e)
+    if parts is not None and any(op is not None for op in parts[0]):
+        op = next(op for op in parts[0] if op is not None)
+        raise OCPError(
+            f"{what} is a comparison ({op}), whose value is 0 or 1: minimize a numeric "
+            "expression, and state conditions with ocp.constrain or ocp.bound"
+        )
+    return e
+
+
+def _condition_bounds(parts, what: str) -> tuple[ca.SX, np.ndarray, np.ndarray]:
+    """``(expr, lb, ub)`` of the conditions ``parts`` (:func:`daekit.model.comparison_parts`):
+    ``a <= c`` with a constant ``c`` is ``a`` bounded above by ``c`` (a constant on the left
+    bounds below), otherwise ``a - b <= 0``; ``==`` gives ``lb = ub``."""
+    ops, lhs, rhs = parts
+    exprs, lb, ub = [], [], []
+    for k, op in enumerate(ops):
+        if op not in ("<=", "<", "=="):
+            shown = "no comparison" if op is None else repr(op)
+            raise OCPError(
+                f"{what}: element {k} is {shown}; a condition takes <=, >=, <, > or == on "
+                "every element"
+            )
+        a, b = lhs[k], rhs[k]
+        if b.is_constant():
+            e, lo, hi = a, -np.inf, float(b)
+        elif a.is_constant():
+            e, lo, hi = b, float(a), np.inf
+        else:
+            e, lo, hi = a - b, -np.inf, 0.0
+        if op == "==":
+            lo = hi = hi if np.isfinite(hi) else lo
+        exprs.append(e)
+        lb.append(lo)
+        ub.append(hi)
+    return ca.vertcat(*exprs), np.array(lb), np.array(ub)

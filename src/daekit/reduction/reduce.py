@@ -687,7 +687,7 @@ def _perturbed(cp, seed: int, at_random, f):
     return ref if np.all(np.isfinite(ref.data if sp.issparse(ref) else ref)) else at_random
 
 
-def _singular_on_solutions(r: ReducedDAE, f, seed: int, at_random, jac_alg=None):
+def _singular_on_solutions(r: ReducedDAE, f, seed: int, at_random):
     """Rows of ``d alg / d z`` singular at two consistent points (alg = 0, invariants = 0),
     or None (nonsingular at one of them, or no consistent point found, or too big); sets
     ``r.info["index1_check"]``. ``f(t, x, z, u, p)``: the matrix the check ranks (see
@@ -703,7 +703,7 @@ def _singular_on_solutions(r: ReducedDAE, f, seed: int, at_random, jac_alg=None)
     bad = None
     for k in range(2):
         # the first from the analysis's consistent point of the model where there is one
-        cp = reduced_consistent_point(r, seed + 1000 * k, jac_alg=jac_alg, remembered=k == 0)
+        cp = reduced_consistent_point(r, seed + 1000 * k, remembered=k == 0)
         if cp is None:
             if bad is not None:  # singular at the one consistent point found: singular
                 return bad

@@ -202,7 +202,7 @@ def part1(quick: bool) -> dict:
 def verdict(ratios: dict, chain: float | None) -> None:
     """Issue 8's speed targets, each with its numbers: the verdict is taken on the medians
     over the perturbed starts (the exact start's ratio beside it, for the record)."""
-    if not ratios:
+    if not ratios and chain is None:
         return
     print("\nverdict (issue 8's targets; CPU time over the hand form, median over the "
           f"{K_STARTS} perturbed starts; the exact start's in brackets)")

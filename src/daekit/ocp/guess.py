@@ -227,7 +227,9 @@ def make_guess(prob, guess) -> Guess:
 #: Measured, IPOPT iterations of the OCP with 26 / 51 nodes: cart-pole swing-up 9 / 32 (full
 #: state) and 10 / 14 (the user's form), Betts 10.103 14 / 13, crane 20 / 19, planar swing,
 #: 3D pendulum (periodic, rest to rest) and delta robot equal; the same objectives; the blend
-#: itself costs about half.
+#: itself costs about half. Fewer nodes are not cheaper in the end: with 11 / 16 / 21 nodes the
+#: cart-pole swing-up (full state) took 27 / 920 (failed) / 9 OCP iterations, Betts 10.103 11 /
+#: 21 / 15 (measured in round 6).
 BLEND_NODES = 26
 #: Weight of the OCP's own integral objective in the blend (prefers paths the controls can
 #: afford; measured on Betts 10.103 with the minimal index-1 form: 815 IPOPT iterations to a
@@ -268,6 +270,16 @@ BLEND_DERIVATIVES = "closed form"
 #: 262 -> 247 million; the same blend and OCP iterations on the swing, Betts 10.103, the
 #: cart-pole, the crane, the delta robot, and over the 16 cart-pole variants (one of them 72 ->
 #: 71 OCP iterations).
+#: Measured in round 6 and not kept (blend iterations, then OCP iterations; swing / Betts 10.103 /
+#: cart-pole): the inertia-free curvature test (``neg_curv_test_tol`` 1e-12) 71 / 110 / 70 (OCP
+#: 5 / 14 / 33); a fixed proximal shift ``sigma I`` in the blend's Hessian (fewer inertia
+#: corrections) with sigma = 0.01, 0.1, 1: cart-pole OCP 15, 80, 226; ``perturb_dec_fact`` 0.1:
+#: Betts 23 blend iterations; CasADi's ``sqpmethod`` with ``qrqp`` and the same closed-form
+#: derivatives: 18 / 72 / not converged in 100. ``first_hessian_perturbation = 1`` and the
+#: MUMPS orderings give the same blend (the two saved factorizations are below callgrind's
+#: noise); a dense (LAPACK) or banded factorization of the 268 x 268 KKT system costs 2.6 /
+#: 0.4 ms against MUMPS' about 0.3 ms, so a hand-written dense or banded SQP would not be cheaper
+#: per iteration.
 BLEND_TOLERANCES = {"ipopt.tol": 1e-1, "ipopt.constr_viol_tol": 1e-2, "ipopt.dual_inf_tol": 1.0,
                     "ipopt.mu_strategy": "adaptive", "ipopt.constr_mult_init_max": 0.0,
                     "ipopt.mumps_scaling": 0}

@@ -280,6 +280,10 @@ def main() -> None:
               f"rounds {m:.2f}; of all {rounds} rounds {np.median(speed):.2f}; best "
               f"{max(speed):.2f}; load-independent estimate {np.median(est):.2f}, bound "
               f"{np.median(bound):.2f})")
+    elif np.median(bound) < SPEEDUP_TARGET:  # not reachable even at that round's CPU costs
+        print(f"  speedup >= {SPEEDUP_TARGET} with {WORKERS} workers: NOT MET (machine busy, "
+              f"{len(quiet)} quiet rounds of {rounds}, but the median bound on 2 idle cores is "
+              f"{np.median(bound):.2f}; median of all rounds {np.median(speed):.2f})")
     else:
         print(f"  speedup >= {SPEEDUP_TARGET} with {WORKERS} workers: NOT JUDGED (machine busy: "
               f"{len(quiet)} quiet rounds of {rounds}; median of all rounds "

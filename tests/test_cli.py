@@ -169,6 +169,7 @@ SCRIPT_FILE = textwrap.dedent('''
     ("", ""),                       # the one model the script builds at top level
     ("model = m\n", ""),            # a variable named model (not a function)
     ("other = 3\n", ":m"),          # a model named explicitly
+    ("from daekit import LagrangianSystem, Model\n", ""),  # imported classes are no models
 ])
 def test_a_script_that_builds_its_model_at_top_level(tmp_path, capsys, tail, target):
     f = tmp_path / "script.py"

@@ -417,7 +417,7 @@ def test_input_expressions_travel_with_the_system():
 
 def test_local_trajectories_come_through_shared_memory(planar):
     """Forked workers write each trajectory's arrays (x, z, the invariants, the parameters)
-    into one shared map: exactly those bytes go that way, the output grid travels by
+    into shared maps (one per chunk): exactly those bytes go that way, the output grid travels by
     reference, a few hundred bytes a trajectory as messages; the trajectories read here are
     bit for bit a serial run's in every column, and stay valid after the ensemble is gone."""
     import gc
@@ -434,7 +434,11 @@ def test_local_trajectories_come_through_shared_memory(planar):
     assert loc.stats["shared_bytes"] == len(some) * per_traj
     assert loc.stats["pipe_bytes"] < 1500 * len(some) < loc.stats["shared_bytes"] / 20
     first = loc[0]
-    assert first.t is loc[1].t  # the grid by reference: this process's own
+    # the grid travels by reference, but each trajectory owns its times (as a serial run's
+    # do): none shares memory with another, with the ensemble's grid, or with the caller's
+    assert np.array_equal(first.t, T_GRID)
+    assert not np.shares_memory(first.t, loc[1].t)
+    assert not np.shares_memory(first.t, T_GRID) and not np.shares_memory(loc.t, T_GRID)
     del loc
     gc.collect()
     for name in ser[0].names:

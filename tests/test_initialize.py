@@ -306,3 +306,11 @@ def test_a_system_whose_input_is_not_a_symbol_is_named():
                    ["x"], ["z"], ["u", "gain"], [], np.zeros(0), {"x": x, "z": z})
     with pytest.raises(ModelError, match=r"input 'gain' is the expression 0"):
         initialize(r, guess={"x": 1.0})
+
+
+def test_a_system_with_one_symbol_in_two_roles_is_named():
+    t, x, z = ca.SX.sym("t"), ca.SX.sym("x"), ca.SX.sym("z")
+    r = ReducedDAE(t, x, z, ca.SX(0, 1), x, z, z - x, ca.SX(0, 1), [], ["x"], ["z"], [], ["k"],
+                   np.ones(1), {"x": x, "z": z})
+    with pytest.raises(ModelError, match=r"one symbol is used as two of them"):
+        initialize(r, guess={"x": 1.0})

@@ -219,9 +219,9 @@ def test_equations_written_with_double_equals_are_residuals():
     a = dk.analyze(m)
     assert (a.index, a.dof) == (3, 2)
     x = m.state("x")
-    with pytest.raises(ModelError, match=r"equation 'cap' is a comparison \(<=\)"):
+    with pytest.raises(ModelError, match=r"equation 'cap' is a comparison \(<= or >=\)"):
         m.equation(x <= 1, name="cap")
-    with pytest.raises(ModelError, match=r"'both\[1\]' is a comparison \(<\)"):
+    with pytest.raises(ModelError, match=r"'both\[1\]' is a comparison \(< or >\)"):
         m.equation(ca.vertcat(x == 1, x < 2), name="both")
 
 
@@ -231,3 +231,16 @@ def test_a_long_vector_equation_with_double_equals():
     x = m.state("x", 3000)
     m.equation(m.der(x) == -x, name="decay")
     assert ca.is_equal(m.residual[2999], m.der(x)[2999] + x[2999], 1)
+
+
+def test_one_comparison_among_many_residuals_is_found():
+    """A single comparison in a long vector (beyond any probe) is still read as one."""
+    m = dk.Model("long")
+    x = m.state("x", 2000)
+    res = [m.der(x)[i] + x[i] for i in range(2000)]
+    res[1357] = m.der(x)[1357] == -x[1357]
+    m.equation(ca.vertcat(*res), name="decay")
+    assert ca.is_equal(m.residual[1357], m.der(x)[1357] - (-x[1357]), 2)
+    res[1357] = m.der(x)[1357] <= -x[1357]
+    with pytest.raises(ModelError, match=r"'mixed\[1357\]' is a comparison"):
+        m.equation(ca.vertcat(*res), name="mixed")

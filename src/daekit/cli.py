@@ -63,8 +63,9 @@ def load_target(spec: str):
     from .model import Model
     from .reduced import ReducedDAE
 
-    def is_model(v) -> bool:
-        return isinstance(v, (Model, ReducedDAE)) or hasattr(v, "index1")  # or a Lagrangian
+    def is_model(v) -> bool:  # an instance (an imported class is none), or a Lagrangian
+        return not isinstance(v, type) and (isinstance(v, (Model, ReducedDAE))
+                                            or hasattr(v, "index1"))
     if not hasattr(module, func):
         found = [n for n, v in vars(module).items() if not n.startswith("_") and is_model(v)]
         if not explicit and len(found) == 1:  # a script that builds one model at top level

@@ -13,9 +13,10 @@ Where the samples run (``executor=``):
 
 - ``None``: local worker processes (:class:`concurrent.futures.ProcessPoolExecutor`, one per
   core); the system is installed in every worker by its initializer. Where processes are
-  forked (Linux), the workers write their trajectories' arrays into one shared memory map
-  and only a few hundred bytes a trajectory travel as messages: the trajectories here read
-  their arrays in place (views of that map, which lives as long as any of them).
+  forked (Linux), the workers write their trajectories' arrays into shared memory maps (one
+  per chunk of samples) and only a few hundred bytes a trajectory travel as messages: the
+  trajectories here read their arrays in place (views of their chunk's map, which lives as
+  long as any of its trajectories).
 - ``"serial"``: in this process, one after the other.
 - a :class:`dask.distributed.Client`: the system is scattered to every worker once
   (``client.scatter(..., broadcast=True)``); chunks of samples are submitted as tasks.
@@ -429,9 +430,9 @@ _BLOCKS: dict[str, _SharedBlock] = {}  # token -> block, made before the workers
 
 
 class _SharedBlock:
-    """One anonymous shared memory map for the arrays of a sweep's trajectories, made in this
-    process before its workers are forked (they inherit the mapping). Each chunk of samples
-    owns a region of it; a worker writes its trajectories' arrays there (pickle protocol 5's
+    """One anonymous shared memory map for the arrays of a chunk's trajectories, made in this
+    process before its workers are forked (they inherit the mapping). The worker that runs
+    the chunk writes its trajectories' arrays there (pickle protocol 5's
     out-of-band buffers) and sends through the pipe only the rest (a few hundred bytes a
     trajectory). This process reads the arrays in place: the trajectories' arrays are views of
     the map, which lives as long as any of them does. Measured on the 3D pendulum (1001
@@ -489,7 +490,7 @@ def _received_system():
 def _received_grid():
     if getattr(_RECEIVING, "grid", None) is None:
         raise pickle.UnpicklingError("daekit.ensemble: a grid reference without the grid")
-    return _RECEIVING.grid
+    return _RECEIVING.grid.copy()  # each trajectory owns its times, as a serial run's do
 
 
 class _SendPickler(pickle.Pickler):
@@ -706,21 +707,22 @@ def _make_chunks(indexed: list, chunksize: int | None, workers: int) -> list[lis
     return _guided_chunks(indexed, workers)
 
 
-def _shared_block_for(r, n_rows: int, chunks: list[list]):
-    """``(block, regions)``: a :class:`_SharedBlock` with one region ``(token, start, end)``
-    per chunk (room for its samples' arrays), registered for the workers about to be forked;
-    ``(None, [])`` when the map cannot be made (then the arrays travel through the pipe)."""
+def _shared_blocks_for(r, n_rows: int, chunks: list[list]) -> list:
+    """One :class:`_SharedBlock` per chunk (room for its samples' arrays), registered for the
+    workers about to be forked: a trajectory kept after the sweep holds its chunk's map, not
+    the whole sweep's. None for a chunk whose map cannot be made (its arrays travel through
+    the pipe)."""
     per = _sample_bytes(r, n_rows)
-    try:
-        block = _SharedBlock(per * sum(len(c) for c in chunks))
-    except (OSError, ValueError, OverflowError):  # no room for the map: the pipe
-        return None, []
-    regions, pos = [], 0
+    blocks = []
     for c in chunks:
-        regions.append((block.token, pos, pos + per * len(c)))
-        pos += per * len(c)
-    _BLOCKS[block.token] = block
-    return block, regions
+        try:
+            block = _SharedBlock(per * len(c))
+        except (OSError, ValueError, OverflowError):  # no room for the map: the pipe
+            block = None
+        else:
+            _BLOCKS[block.token] = block
+        blocks.append(block)
+    return blocks
 
 
 def ensemble(
@@ -801,7 +803,7 @@ def ensemble(
 
         r = as_reduced(system, "ensemble", stabilization=simulate_options.get("stabilization"),
                        method=simulate_options.get("method", "idas"), notes=notes)
-    tg = np.asarray(t, dtype=float).ravel()
+    tg = np.array(t, dtype=float).ravel()  # a copy: the ensemble's, not the caller's array
     if tg.size < 2 or not np.all(np.isfinite(tg)) or np.any(np.diff(tg) <= 0):
         raise ModelError("ensemble: t must hold at least two finite, strictly increasing times")
     samp = _as_sample_list(samples)
@@ -822,16 +824,16 @@ def ensemble(
     indexed = list(enumerate(samp))
     bar = _SampleProgress(progress, len(samp))
     results: list[dict | None] = [None] * len(samp)
-    failed = 0
+    count = {"done": 0, "failed": 0}
 
     def take(pairs):
-        nonlocal failed
         for i, res in pairs:
             results[i] = res
-            failed += bool(res.get("error"))
+            count["failed"] += bool(res.get("error"))
+        count["done"] += len(pairs)
+        bar.update(count["done"], count["failed"])
 
     stats: dict[str, Any] = {"notes": notes}
-    single_blas = contextlib.ExitStack()
     local_reduce = None
     if isinstance(executor, str) and executor != "serial":
         raise ModelError(
@@ -840,50 +842,72 @@ def ensemble(
         )
     if executor == "serial":
         stats.update(executor="serial", workers=1, chunks=len(samp))
-        for done, (i, s) in enumerate(indexed, 1):
+        for i, s in indexed:
             take([(i, _run_one(r, s, job))])
-            bar.update(done, failed)
-    else:
+        bar.close()
+        ens = Ensemble(samp, results, tg, keep, stats, r)
+        stats["wall_time"] = time.perf_counter() - wall0
+        return ens
+    try:
+        if inputs:
+            blob = _pack_system(r, inputs)
+            key = hashlib.sha1(blob).hexdigest()
+        else:  # the system alone: serialized once per system (22 ms for the 3D pendulum)
+            blob, key = r.derived("ensemble-blob", _packed_alone)
+    except Exception:  # noqa: BLE001
+        raise ModelError(
+            "ensemble: the inputs cannot be sent to worker processes (a local Python "
+            "function without cloudpickle installed?); give them as CasADi expressions of "
+            "time, install cloudpickle, or use executor='serial'"
+        ) from None
+    try:
+        payload_job = dict(job, inputs=None)
+        _dumps(payload_job)
+    except Exception:  # noqa: BLE001 - reduce cannot be shipped: run it here
+        if reduce is None:
+            raise ModelError(
+                "ensemble: the simulate options cannot be sent to worker processes; install "
+                "cloudpickle, or use executor='serial'"
+            ) from None
+        local_reduce = reduce
+        payload_job = dict(job, inputs=None, reduce=None, keep="trajectory")
         try:
-            if inputs:
-                blob = _pack_system(r, inputs)
-                key = hashlib.sha1(blob).hexdigest()
-            else:  # the system alone: serialized once per system (22 ms for the 3D pendulum)
-                blob, key = r.derived("ensemble-blob", _packed_alone)
+            _dumps(payload_job)
         except Exception:  # noqa: BLE001
             raise ModelError(
-                "ensemble: the inputs cannot be sent to worker processes (a local Python "
-                "function without cloudpickle installed?); give them as CasADi expressions of "
-                "time, install cloudpickle, or use executor='serial'"
+                "ensemble: the options cannot be sent to worker processes; install "
+                "cloudpickle, or use executor='serial'"
             ) from None
-        try:
-            payload_job = dict(job, inputs=None)
-            _dumps(payload_job)
-        except Exception:  # noqa: BLE001 - reduce cannot be shipped: run it here
-            if reduce is None:
-                raise ModelError(
-                    "ensemble: the simulate options cannot be sent to worker processes; install "
-                    "cloudpickle, or use executor='serial'"
-                ) from None
-            local_reduce = reduce
-            payload_job = dict(job, inputs=None, reduce=None, keep="trajectory")
-            try:
-                _dumps(payload_job)
-            except Exception:  # noqa: BLE001
-                raise ModelError(
-                    "ensemble: the options cannot be sent to worker processes; install "
-                    "cloudpickle, or use executor='serial'"
-                ) from None
-        stats["system_bytes"] = len(blob)
-        own = None
-        inherited = None
-        block = None
-        regions: list = []
-        ex = executor
+    stats["system_bytes"] = len(blob)
+    # this process's BLAS threads come back last, after the ensemble is built (OpenBLAS
+    # starts them again, a fork stopped them, and each spins some 100 ms), and on any error
+    with contextlib.ExitStack() as single_blas:
+        _run_elsewhere(r, executor, key, blob, inputs, indexed, chunksize, payload_job, tg,
+                       stats, take, single_blas)
+        if local_reduce is not None:
+            for res in results:
+                if res is not None and not res.get("error"):
+                    _apply_reduce(res, local_reduce, keep)
+        bar.close()
+        ens = Ensemble(samp, results, tg, keep, stats, r)
+        stats["wall_time"] = time.perf_counter() - wall0
+    return ens
+
+
+def _run_elsewhere(r, executor, key: str, blob: bytes, inputs, indexed: list, chunksize,
+                   payload_job: dict, tg: np.ndarray, stats: dict, take,
+                   single_blas: contextlib.ExitStack) -> None:
+    """Run the chunks on ``executor`` (None: local processes), handing each chunk's results
+    to ``take``; ``single_blas`` gets this process's one-BLAS-thread limit while local workers
+    run (the caller closes it last, after the ensemble is built)."""
+    own = inherited = None
+    blocks: list = []
+    ex = executor
+    try:
         if ex is None:
             from concurrent.futures import ProcessPoolExecutor
 
-            n_workers = max(1, min(_cpu_count(), len(samp)))
+            n_workers = max(1, min(_cpu_count(), len(indexed)))
             chunks = _make_chunks(indexed, chunksize, n_workers)
             ctx = multiprocessing.get_context()
             if ctx.get_start_method() == "fork" and key not in _SYSTEMS:
@@ -902,7 +926,7 @@ def ensemble(
             if ctx.get_start_method() == "fork" and payload_job["keep"] == "trajectory":
                 # the trajectories' arrays come back through memory the workers inherit (they
                 # are forked at the first submit, below)
-                block, regions = _shared_block_for(r, tg.size, chunks)
+                blocks = _shared_blocks_for(r, tg.size, chunks)
             stats.update(executor="processes", workers=n_workers)
         elif _is_dask_client(ex):
             stats.update(executor=f"dask ({getattr(ex.scheduler, 'address', '?')})",
@@ -921,51 +945,40 @@ def ensemble(
         # or scatter); with a foreign executor once per chunk (deserialized once per process)
         stats["system_transfers"] = (stats["workers"] if own is not None or _is_dask_client(ex)
                                      else len(chunks))
-        try:
-            if _is_dask_client(ex):
-                from distributed import as_completed as dask_completed
+        block_of: dict = {}  # future -> its chunk's shared block
+        if _is_dask_client(ex):
+            from distributed import as_completed as dask_completed
 
-                blob_f = ex.scatter(blob, broadcast=True, hash=False)
-                futs = [ex.submit(_run_chunk, key, blob_f, _dumps(dict(payload_job, samples=c)),
-                                  pure=False) for c in chunks]
-                done_iter = dask_completed(futs)
-            else:
-                ship = None if own is not None else blob
-                futs = [ex.submit(_run_chunk, key, ship, _dumps(
-                    dict(payload_job, samples=c, shared=regions[k] if regions else None)))
-                    for k, c in enumerate(chunks)]
-                done_iter = as_completed(futs)
-            n_done = 0
-            for f in done_iter:
-                got = f.result()
-                stats["pipe_bytes"] = stats.get("pipe_bytes", 0) + len(
-                    got[0] if isinstance(got, tuple) else got)
-                pairs = _load_results(got, r, tg, block)
-                take(pairs)
-                n_done += len(pairs)
-                bar.update(n_done, failed)
-        except BaseException:
-            single_blas.close()
-            raise
-        finally:
-            if inherited is not None:
-                _SYSTEMS.pop(inherited, None)  # the workers have their copies
-            if block is not None:
-                _BLOCKS.pop(block.token, None)  # the trajectories keep the map alive
-                stats.update(shared_bytes=block.used)
-            if own is not None:
-                own.shutdown(wait=True)
-        if local_reduce is not None:
-            for res in results:
-                if res is not None and not res.get("error"):
-                    _apply_reduce(res, local_reduce, keep)
-    bar.close()
-    ens = Ensemble(samp, results, tg, keep, stats, r)
-    stats["wall_time"] = time.perf_counter() - wall0
-    # this process's BLAS threads back last: OpenBLAS starts them again (a fork stopped them),
-    # and each spins some 100 ms, which would slow what is left of this call
-    single_blas.close()
-    return ens
+            blob_f = ex.scatter(blob, broadcast=True, hash=False)
+            futs = [ex.submit(_run_chunk, key, blob_f, _dumps(dict(payload_job, samples=c)),
+                              pure=False) for c in chunks]
+            done_iter = dask_completed(futs)
+        else:
+            ship = None if own is not None else blob
+            futs = []
+            for k, c in enumerate(chunks):
+                blk = blocks[k] if blocks else None
+                region = (blk.token, 0, len(blk.map)) if blk is not None else None
+                f = ex.submit(_run_chunk, key, ship, _dumps(dict(payload_job, samples=c,
+                                                                 shared=region)))
+                block_of[f] = blk
+                futs.append(f)
+            done_iter = as_completed(futs)
+        for f in done_iter:
+            got = f.result()
+            stats["pipe_bytes"] = stats.get("pipe_bytes", 0) + len(
+                got[0] if isinstance(got, tuple) else got)
+            take(_load_results(got, r, tg, block_of.get(f)))
+    finally:
+        if inherited is not None:
+            _SYSTEMS.pop(inherited, None)  # the workers have their copies
+        if blocks:
+            for blk in blocks:
+                if blk is not None:
+                    _BLOCKS.pop(blk.token, None)  # the trajectories keep the maps alive
+            stats.update(shared_bytes=sum(blk.used for blk in blocks if blk is not None))
+        if own is not None:
+            own.shutdown(wait=True)
 
 
 def _check_simulate_options(opts: Mapping) -> None:

@@ -958,9 +958,10 @@ def _system_jacobians(r) -> SystemJacobians:
                            ("time", r.t, ["t"])):
         if v.numel() and not v.is_valid_input():
             raise ModelError(_not_plain(what, v, names))
-    if w.numel() and not w.is_valid_input():
-        raise ModelError("the system's states and algebraic unknowns must be distinct symbols; "
-                         "one symbol is both")
+    every = ca.vertcat(r.t, w, r.u, r.p)
+    if len(ca.symvar(every)) != every.numel():  # (symvar lists each symbol once)
+        raise ModelError("the system's time, states, algebraic unknowns, inputs and parameters "
+                         "must be distinct symbols; one symbol is used as two of them")
     alg = ca.vec(ca.densify(ca.SX(r.alg)))
     inv = ca.vec(ca.densify(ca.SX(r.invariants))) if r.invariants.numel() else ca.SX(0, 1)
     # one Jacobian per block (CasADi's jacobian of the stacked rows costs more than both)

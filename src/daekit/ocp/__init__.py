@@ -584,9 +584,8 @@ def _no_comparison(e: ca.SX, what: str) -> ca.SX:
     """``e``, or an :class:`OCPError` where it is a comparison (a 0/1 value, no objective)."""
     parts = comparison_parts(e)
     if parts is not None and any(op is not None for op in parts[0]):
-        op = next(op for op in parts[0] if op is not None)
         raise OCPError(
-            f"{what} is a comparison ({op}), whose value is 0 or 1: minimize a numeric "
+            f"{what} is a comparison, whose value is 0 or 1: minimize a numeric "
             "expression, and state conditions with ocp.constrain or ocp.bound"
         )
     return e

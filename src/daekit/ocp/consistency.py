@@ -65,9 +65,9 @@ def as_array(M) -> np.ndarray:
     out[r, c] = M.nonzeros()
     return out
 
-__all__ = ["as_array", "DenseFunction", "BoundaryAnalysis", "independent_rows", "analyze_boundary", "null_basis",
-           "project_ends", "project_ends_many", "restricted_jacobian", "conflicting_conditions",
-           "equilibrate"]
+__all__ = ["as_array", "DenseFunction", "BoundaryAnalysis", "independent_rows",
+           "analyze_boundary", "null_basis", "project_ends", "project_ends_many",
+           "restricted_jacobian", "conflicting_conditions", "equilibrate"]
 
 
 class DenseFunction:

@@ -413,3 +413,48 @@ def test_input_expressions_travel_with_the_system():
         assert np.abs(tr["x2"] - np.sin(t)).max() < 1e-8
         assert np.abs(tr["x1"] - np.cos(t)).max() < 1e-8
         assert np.abs(tr["z"] + np.sin(t)).max() < 1e-6
+
+
+def test_local_trajectories_come_through_shared_memory(planar):
+    """Forked workers write each trajectory's arrays (x, z, the invariants, the parameters)
+    into one shared map: exactly those bytes go that way, the output grid travels by
+    reference, a few hundred bytes a trajectory as messages; the trajectories read here are
+    bit for bit a serial run's in every column, and stay valid after the ensemble is gone."""
+    import gc
+    import multiprocessing
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("shared memory needs forked workers")
+    some = swing_samples()[:6]
+    ser = run(planar, "serial", samples=some)
+    loc = run(planar, None, samples=some)
+    assert loc.stats["executor"] == "processes" and loc.failures == {}
+    n, ninv = T_GRID.size, len(planar.invariant_names)
+    per_traj = 8 * (n * (planar.nx + planar.nz + ninv) + int(planar.p.numel()))
+    assert loc.stats["shared_bytes"] == len(some) * per_traj
+    assert loc.stats["pipe_bytes"] < 1500 * len(some) < loc.stats["shared_bytes"] / 20
+    first = loc[0]
+    assert first.t is loc[1].t  # the grid by reference: this process's own
+    del loc
+    gc.collect()
+    for name in ser[0].names:
+        assert np.array_equal(first[name], ser[0][name]), name
+    assert np.array_equal(first.invariants, ser[0].invariants)
+    ex = pendulum_planar(T_GRID, THETA0, g=9.81, L=LENGTHS[0])  # and the exact solution
+    assert np.abs(first["x"] - ex["x"]).max() < 1e-7 and np.abs(first["y"] - ex["y"]).max() < 1e-7
+
+
+def test_what_does_not_fit_the_shared_map_takes_the_pipe(planar, monkeypatch):
+    """A trajectory longer than its room in the map (events add rows) travels through the
+    pipe as before: forced here by leaving no room at all; the results are the same."""
+    ens_mod = sys.modules["daekit.ensemble"]
+    monkeypatch.setattr(ens_mod, "_sample_bytes", lambda r, n: 64)
+    some = swing_samples()[:3]
+    loc = run(planar, None, samples=some)
+    ser = run(planar, "serial", samples=some)
+    assert loc.failures == {} and loc.stats["shared_bytes"] <= 3 * 64
+    assert loc.stats["pipe_bytes"] > 8 * T_GRID.size * planar.nx * len(some)
+    for a, b in zip(loc, ser, strict=True):
+        assert np.array_equal(a["x"], b["x"]) and np.array_equal(a["der(y)"], b["der(y)"])
+        assert np.array_equal(a.invariants, b.invariants)
+    assert [r["period"] for r in loc.summary()] == [r["period"] for r in ser.summary()]

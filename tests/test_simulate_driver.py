@@ -321,3 +321,52 @@ def test_integrator_cache_does_not_keep_systems_alive():
     del r
     gc.collect()
     assert ref() is None
+
+
+def test_pivot_screening_decides_as_the_exact_measure(monkeypatch):
+    """The dummy-derivative monitor's screening (:func:`first_degraded`: eigenvalues at one
+    check row in eight, Weyl bounds between) fires at exactly the row where the exact measure
+    at every row would (``q < lim`` or ``2 q - q_prev < lim``), on the double pendulum's first
+    selection up to where IDAS fails on it (q from 0.23 down to 0.013, up and down again), for
+    limits across that range, with and without a previous value; with eigenvalues at few rows
+    while the pivot stays away from the limit. The exact measure is the reduction's own
+    (:func:`daekit.reduction.selection_condition`, SVDs) at sampled rows."""
+    from daekit.simulate import dummy
+    from daekit.simulate.system import signal_for, system_for
+
+    m = double_pendulum()
+    s0 = double_pendulum_start()
+    guess = {"p1": s0["p1"], "p2": s0["p2"]}
+    rd = dk.reduce_index(m, method="dummy_derivatives", point=guess)
+    ini = dk.initialize(rd, guess=guess, fixed={"p1[0]": s0["p1"][0], "p2[0]": s0["p2"][0],
+                                                "v1": [0, 0], "v2": [0, 0]})
+    rc = dummy.compact(rd)
+    sy = system_for(rc, signal_for(rc, None), 1e-8, 1e-8, {"suppress_algebraic": True})
+    t = np.linspace(0.0, 1.86, 401)
+    X, Z, _ = sy.run(t, ini.x0, dummy.compact_values(rc, ini.z0), rd.p_values, {},
+                     consistent=False, span=1.86)
+    U = np.zeros((t.size, 0))
+    q = 1.0 / dummy.conditions(rc, t, X, Z, U, rd.p_values)
+    full = dummy.full_system(rc)
+    for i in range(0, t.size, 50):  # the batched measure is the reduction's
+        xf, zf = dummy.full_values(rc, t[i], X[i], Z[i], U[i], rd.p_values)[1:]
+        assert np.isclose(q[i], 1.0 / dk.reduction.selection_condition(full, xf, zf), rtol=1e-9)
+    assert q.min() < 0.02 and q.max() > 0.22
+    fired = set()
+    for lim in np.linspace(0.005, 0.24, 48):
+        for qp in (None, 1.1 * q[0], 0.5 * q[0]):
+            prev = np.r_[np.nan if qp is None else qp, q[:-1]]
+            with np.errstate(invalid="ignore"):
+                bad = np.nonzero((q < lim) | (2.0 * q - prev < lim))[0]
+            want = int(bad[0]) if bad.size else -1
+            i, qi = dummy.first_degraded(rc, t, X, Z, U, rd.p_values, lim, qp)
+            assert i == want, (lim, qp, i, want)
+            assert np.isclose(qi, q[i], rtol=1e-12)
+            fired.add(i)
+    assert len(fired) > 10  # (the limits cover many firing rows)
+    rows = []
+    real = np.linalg.eigvalsh
+    monkeypatch.setattr(np.linalg, "eigvalsh", lambda G: rows.append(len(G)) or real(G))
+    k = 50  # q from 0.21 to 0.12
+    assert dummy.first_degraded(rc, t[:k], X[:k], Z[:k], U[:k], rd.p_values, 0.02, None)[0] == -1
+    assert 0 < sum(rows) <= 2 * 2 * k / 4, rows  # (exact: two Gram matrices per row, block)

@@ -9,7 +9,9 @@ as dummy fails where the rod passes ``y = 0``).
 (:func:`daekit.reduction.selection_condition`) at the rows of every driver segment (output
 points and check points at most ``span / 500`` apart). It fires where ``q`` falls below
 ``1 / max(threshold, growth * condition at selection)``, or is predicted (linear extrapolation
-from the previous row) to fall below it by the next row. Its action makes a new selection at
+from the previous row) to fall below it by the next row (:func:`first_degraded`: the same
+decision as evaluating ``q`` exactly at every row, with eigenvalues at one row in eight and
+rigorous bounds between them). Its action makes a new selection at
 that point (:func:`daekit.reduction.reselect`), carries the values over by name
 (:func:`daekit.reduction.map_values`), and the driver restarts IDAS there from the consistent
 state of the new selection (``z`` re-solved, no IDACalcIC). When the new selection equals the
@@ -36,17 +38,15 @@ from .system import System, signal_for, system_for
 from .trajectory import Trajectory
 from .vectorized import evaluate_rows
 
-__all__ = ["PivotMonitor", "simulate_dummy"]
+__all__ = ["PivotMonitor", "conditions", "first_degraded", "simulate_dummy"]
 
 
-def conditions(rr, T, X, Z, U, p) -> np.ndarray:
-    """:func:`daekit.reduction.selection_condition` at many rows at once (the stage blocks by
-    one vectorized evaluation, batched eigenvalues of their Gram matrices): ``inf`` where a
-    block is singular."""
+def _blocks(rr, T, X, Z, U, p) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The stage blocks of :func:`daekit.reduction.selection_condition` at many rows, by one
+    vectorized evaluation: ``[(A (n, rows, candidates), selected columns)]``, rows of ``A``
+    with a non-finite entry set to NaN."""
     T = np.asarray(T, dtype=float).ravel()
     n = T.size
-    if n == 0:
-        return np.zeros(0)
     cache = rr.derived("simulate.selection_condition", lambda r: {})
     if "fun" not in cache:
         syms = [ca.SX.sym(k, v.numel()) for k, v in (("t", rr.t), ("x", rr.x), ("z", rr.z),
@@ -59,39 +59,193 @@ def conditions(rr, T, X, Z, U, p) -> np.ndarray:
         cache["shapes"] = [b.shape for b, _ in blocks]
         cache["maps"] = {}
     F, cols, shapes = cache["fun"], cache["cols"], cache["shapes"]
-    if not cols:
-        return np.ones(n)
+    if not cols or n == 0:
+        return []
     P = np.repeat(np.asarray(p, float).reshape(1, -1), n, axis=0)
     res = evaluate_rows(F, [T, np.asarray(X, float).reshape(n, -1), np.asarray(Z, float).reshape(
         n, -1), np.asarray(U, float).reshape(n, -1), P], cache["maps"])
-    worst = np.ones(n)
+    out = []
     for i, c in enumerate(cols):
         A = np.transpose(res[i].reshape((n, shapes[i][1], shapes[i][0])), (0, 2, 1))
-        ok = None
-        if not np.isfinite(res[i]).all():
-            ok = np.all(np.isfinite(A), axis=(1, 2))
-            A = np.where(ok[:, None, None], A, 0.0)
+        if not np.isfinite(A).all():
+            A = np.where(np.all(np.isfinite(A), axis=(1, 2))[:, None, None], A, np.nan)
+        out.append((A, c))
+    return out
+
+
+def _sigmas(A: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sigma_max(A), sigma_min(A[:, :, c]))`` per row (NaN rows give NaN)."""
+    S = A[:, :, c]
+    with np.errstate(invalid="ignore"):
+        if A.shape[1] == 1:  # one equation (a position constraint): closed form
+            return np.sqrt(np.sum(A[:, 0, :] ** 2, axis=1)), np.abs(S[:, 0, 0])
+        bad = ~np.isfinite(A[:, 0, 0])
+        if bad.any():
+            A, S = np.where(bad[:, None, None], 0.0, A), np.where(bad[:, None, None], 0.0, S)
         # singular values from the Gram matrices' eigenvalues (half the cost of SVDs; the
         # squaring is harmless at the conditions watched, up to ~1e7)
-        S = A[:, :, c]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            if A.shape[1] == 1:  # one equation (a position constraint): closed form
-                smax2 = np.sum(A[:, 0, :] ** 2, axis=1)
-                smin2 = S[:, 0, 0] ** 2
-            else:
-                G1 = A @ np.transpose(A, (0, 2, 1))
-                G2 = np.transpose(S, (0, 2, 1)) @ S
-                if G1.shape == G2.shape:  # (square blocks: one batched call)
-                    ev = np.linalg.eigvalsh(np.concatenate([G1, G2]))
-                    smax2, smin2 = ev[:n, -1], ev[n:, 0]
-                else:
-                    smax2 = np.linalg.eigvalsh(G1)[:, -1]
-                    smin2 = np.linalg.eigvalsh(G2)[:, 0]
-            cond = np.where(smin2 > 0, np.sqrt(np.abs(smax2) / smin2), np.inf)
-        if ok is not None:
-            cond[~ok] = np.inf
-        worst = np.maximum(worst, cond)
+        G1 = A @ np.transpose(A, (0, 2, 1))
+        G2 = np.transpose(S, (0, 2, 1)) @ S
+        n = A.shape[0]
+        if G1.shape == G2.shape:  # (square blocks: one batched call)
+            ev = np.linalg.eigvalsh(np.concatenate([G1, G2]))
+            smax2, smin2 = ev[:n, -1], ev[n:, 0]
+        else:
+            smax2, smin2 = np.linalg.eigvalsh(G1)[:, -1], np.linalg.eigvalsh(G2)[:, 0]
+        smax, smin = np.sqrt(np.abs(smax2)), np.sqrt(np.maximum(smin2, 0.0))
+    if bad.any():
+        smax[bad] = smin[bad] = np.nan
+    return smax, smin
+
+
+def _fro(D: np.ndarray, sel) -> tuple[np.ndarray, np.ndarray]:
+    """Frobenius norms (bounds on the spectral norms) of the flattened blocks ``D`` and of
+    their selected columns (flat indices ``sel``)."""
+    Ds = D[:, sel]
+    return (np.sqrt(np.einsum("ij,ij->i", D, D)), np.sqrt(np.einsum("ij,ij->i", Ds, Ds)))
+
+
+def _ratio(smax, smin) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(smin > 0, smax / smin, np.inf)
+    return np.where(np.isnan(smax) | np.isnan(smin), np.inf, c)
+
+
+def conditions(rr, T, X, Z, U, p) -> np.ndarray:
+    """:func:`daekit.reduction.selection_condition` at many rows at once (the stage blocks by
+    one vectorized evaluation, batched eigenvalues of their Gram matrices): ``inf`` where a
+    block is singular.
+
+    >>> import daekit as dk, numpy as np
+    >>> rd = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives",
+    ...                      point={"x": 0.0, "y": -1.0})
+    >>> vals = {"x": 1.0, "der(x)": 0.0, "y": 1e-9, "der(y)": 0.0}
+    >>> x = np.array([vals[k] for k in rd.x_names]); z = np.zeros(rd.nz)
+    >>> z[rd.z_names.index("y")] = 1e-9
+    >>> c = conditions(rd, [0.0], x[None, :], z[None, :], np.zeros((1, 0)), rd.p_values)
+    >>> bool(np.isclose(c[0], dk.reduction.selection_condition(rd, x, z)))
+    True
+    """
+    n = np.size(T)
+    worst = np.ones(n)
+    for A, c in _blocks(rr, T, X, Z, U, p):
+        worst = np.maximum(worst, _ratio(*_sigmas(A, c)))
     return worst
+
+
+#: exact pivot measures at every ``ANCHOR_STRIDE``-th check row; the rows between get bounds
+ANCHOR_STRIDE = 8
+
+
+def first_degraded(rr, T, X, Z, U, p, lim: float, q_prev: float | None = None,
+                   stride: int = ANCHOR_STRIDE):
+    """The first row where the pivot measure ``q = 1 / conditions(...)`` says re-select: ``q <
+    lim``, or ``2 q - q_prev < lim`` (falling below ``lim`` by the next row at its present
+    rate; ``q_prev`` the previous row's, for row 0 the argument). Returns ``(i, q_i)``, or
+    ``(-1, q at the last row)`` when no row says so.
+
+    The same decision as :func:`conditions` at every row, at a fraction of its cost:
+    ``sigma_max`` and ``sigma_min`` are computed exactly (eigenvalues) only at every
+    ``stride``-th row (anchors) and at the last. At a row ``i`` near an anchor ``a`` Weyl's
+    inequality bounds them, ``|sigma_k(A_i) - sigma_k(A_a)| <= ||A_i - A_a||_2 <= ||A_i -
+    A_a||_F``, which bounds ``q_i`` from below; the same between consecutive rows bounds
+    ``q_{i-1} / q_i`` from above (for the rate test). The rows where the bounds cannot decide
+    (near the limit, or falling fast) are computed exactly.
+    The monitor thus looks at every check row, and pays eigenvalues at about one in
+    ``stride`` of them while the pivot stays away from its limit.
+
+    >>> import daekit as dk, numpy as np
+    >>> rd = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives",
+    ...                      point={"x": 0.0, "y": -1.0})
+    >>> th = np.linspace(0.0, 1.5, 200)            # swinging out towards y = 0
+    >>> vals = {"x": np.sin(th), "y": -np.cos(th), "der(x)": 0 * th, "der(y)": 0 * th}
+    >>> X = np.column_stack([vals[k] for k in rd.x_names])
+    >>> Z = np.zeros((th.size, rd.nz))
+    >>> for j, k in enumerate(rd.z_names):
+    ...     if k in vals:
+    ...         Z[:, j] = vals[k]
+    >>> U, p = np.zeros((th.size, 0)), rd.p_values
+    >>> q = 1 / conditions(rd, th, X, Z, U, p)
+    >>> i, qi = first_degraded(rd, th, X, Z, U, p, lim=0.2)
+    >>> bool(i == np.nonzero((q < 0.2) | (2 * q - np.r_[np.nan, q[:-1]] < 0.2))[0][0])
+    True
+    """
+    T = np.asarray(T, dtype=float).ravel()
+    n = T.size
+    if n == 0:
+        return -1, q_prev
+    qp = np.nan if q_prev is None else float(q_prev)
+    blocks = _blocks(rr, T, X, Z, U, p)
+    if not blocks:
+        return -1, 1.0
+    stride = max(int(stride), 1)
+    if n <= 2 * stride:  # few rows: exact everywhere
+        anchors = np.arange(n)
+    else:
+        anchors = np.arange(0, n, stride)
+        if anchors[-1] != n - 1:
+            anchors = np.append(anchors, n - 1)
+    at_anchor = np.zeros(n, bool)
+    at_anchor[anchors] = True
+    hi = np.ones(n)  # an upper bound on the condition (the largest over the blocks)
+    exact = np.ones(n)  # the condition where it is known exactly (every anchor)
+    rho = np.ones(n)  # q_{i-1} <= rho_i q_i (row 0: unused)
+    everywhere = True  # (every block exact at every row)
+    slack = 1e-9  # (relative: rounding of the anchors' eigenvalues)
+    for A, c in blocks:
+        if A.shape[1] == 1 or anchors.size == n:  # closed form, or exact everywhere
+            cnd = _ratio(*_sigmas(A, c))
+            hi, exact = np.maximum(hi, cnd), np.maximum(exact, cnd)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = np.maximum(cnd[1:], 1.0) / np.maximum(cnd[:-1], 1.0)
+            rho[1:] = np.fmax(rho[1:], np.where(np.isnan(r), np.inf, r))
+            continue
+        everywhere = False
+        amax, amin = _sigmas(A[anchors], c)
+        exact[anchors] = np.maximum(exact[anchors], _ratio(amax, amin))
+        Fa = np.ascontiguousarray(A).reshape(n, -1)  # rows flattened: (n, rows * candidates)
+        sel = (np.arange(A.shape[1])[:, None] * A.shape[2] + np.asarray(c)[None, :]).ravel()
+        # Weyl from the nearest anchor a: |sigma_k(A_i) - sigma_k(A_a)| <= ||A_i - A_a||_F
+        k = np.minimum((np.arange(n) + stride // 2) // stride, anchors.size - 1)
+        dA, dS = _fro(Fa - Fa[anchors[k]], sel)
+        m, sv = amax[k], amin[k]
+        with np.errstate(invalid="ignore"):
+            smax_lo = m * (1 - slack) - dA
+            smin_lo = sv * (1 - slack) - dS - slack * m
+            chi = _ratio(m * (1 + slack) + dA, np.maximum(smin_lo, 0.0))
+        chi[~np.isfinite(Fa[:, 0])] = np.inf  # (non-finite entries: singular)
+        hi = np.maximum(hi, chi)
+        # from row i - 1 to row i the singular values move by at most the difference's norm:
+        # sigma_min(S_{i-1}) <= sigma_min(S_i) + dS_i, sigma_max(A_{i-1}) >= sigma_max(A_i) - dA_i
+        dA, dS = _fro(Fa[1:] - Fa[:-1], sel)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = (1.0 + dS / smin_lo[1:]) / (1.0 - dA / smax_lo[1:])
+        r = np.where((smax_lo[1:] > dA) & (smin_lo[1:] > 0) & ~np.isnan(r), r, np.inf)
+        rho[1:] = np.fmax(rho[1:], r)
+    q_lo = 1.0 / hi
+    q = np.where(at_anchor | everywhere, 1.0 / exact, np.nan)
+    if not everywhere:
+        # no firing at row i if q_i >= lim and 2 q_i - q_{i-1} >= lim; with q_{i-1} <= rho_i q_i
+        # the second holds when q_i (2 - rho_i) >= lim (row 0: the exact q_prev)
+        with np.errstate(invalid="ignore"):
+            ext = q_lo * (2.0 - rho)
+            ext[0] = 2.0 * q_lo[0] - qp if np.isfinite(qp) else np.inf
+            unsure = np.nonzero(~((q_lo >= lim) & (ext >= lim)))[0]
+        need = np.unique(np.concatenate([unsure, unsure[unsure > 0] - 1]))
+        need = need[~at_anchor[need]]
+        if need.size:
+            Xa, Za, Ua = (np.asarray(a, float).reshape(n, -1)[need] for a in (X, Z, U))
+            q[need] = 1.0 / conditions(rr, T[need], Xa, Za, Ua, p)
+    else:
+        unsure = np.arange(n)
+    prev = np.concatenate([[qp], q[:-1]])
+    with np.errstate(invalid="ignore"):
+        fire = (q[unsure] < lim) | (2.0 * q[unsure] - prev[unsure] < lim)
+    hit = np.nonzero(fire)[0]
+    if hit.size:
+        i = int(unsure[hit[0]])
+        return i, float(q[i])
+    return -1, float(q[n - 1])
 
 
 #: dummy-derivative systems with more algebraic unknowns than this are integrated as they are
@@ -267,16 +421,13 @@ class PivotMonitor(Monitor):
         qp = state.get("q")
         tp = state.get("tq", -math.inf)
         rows = np.nonzero(seg.check[1:])[0] + 1  # one batched evaluation
-        q = 1.0 / conditions(rr, seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p)
-        prev = np.concatenate([[qp if qp is not None else np.nan], q[:-1]])
-        with np.errstate(invalid="ignore"):
-            bad = (q < lim) | (2.0 * q - prev < lim)
-        hit = np.nonzero(bad)[0]
-        if hit.size:
-            j = int(rows[hit[0]])
-            state["q_fire"] = float(q[hit[0]])
+        i, qi = first_degraded(rr, seg.t[rows], seg.X[rows], seg.Z[rows], seg.U[rows], seg.p,
+                               lim, qp)
+        if i >= 0:
+            j = int(rows[i])
+            state["q_fire"] = qi
             return Firing(float(seg.t[j]), seg.X[j], seg.Z[j], index=j)
-        state["q_seg"] = (float(q[-1]), float(seg.t[rows[-1]])) if rows.size else (qp, tp)
+        state["q_seg"] = (qi, float(seg.t[rows[-1]])) if rows.size else (qp, tp)
         return None
 
     def accept(self, seg, upto, state):

@@ -309,7 +309,7 @@ class StateColumns:
 
 def _with_constant_inputs(r, tg, X, Z, u_row, n, pv) -> StateColumns:
     """A :class:`StateColumns` whose inputs are ``u_row`` at every one of the ``n`` rows."""
-    return StateColumns(r, tg, X, Z, np.tile(u_row, (n, 1)), pv)
+    return StateColumns(r, tg, X, Z, np.repeat(u_row[None, :], n, axis=0), pv)
 
 
 def reraise_input_error(system: System) -> None:

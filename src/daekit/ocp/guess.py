@@ -37,7 +37,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
-from .nlp import quiet
+from .nlp import call_buffered, quiet
 
 __all__ = ["Guess", "make_guess", "consistent_end"]
 
@@ -389,10 +389,10 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
                             "calc_lam_p": False, "no_nlp_grad": True,  # (run.ipopt_options)
                             **BLEND_TOLERANCES, **extra})
         with quiet():
-            res = solver(x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+            res, stats = call_buffered(solver, x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     except RuntimeError:
         return None
-    if not solver.stats().get("success", False):
+    if not stats.get("success", False):
         return None
     sol = np.asarray(res["x"]).ravel()
     return (sol[:nX].reshape(K, a.nx).T, sol[nX:nX + nZ].reshape(K, a.nz).T,

@@ -37,7 +37,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
-from .nlp import quiet
+from .nlp import call_buffered, quiet
 
 __all__ = ["Guess", "make_guess", "consistent_end"]
 
@@ -386,12 +386,13 @@ def _manifold_blend(prob, ts, x0, z0, xe, ze, Ws, p):
                            {"x": xv, "f": f, "g": G},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
                             "ipopt.max_iter": 300, "ipopt.mumps_permuting_scaling": 0,
+                            "calc_lam_p": False, "no_nlp_grad": True,  # (run.ipopt_options)
                             **BLEND_TOLERANCES, **extra})
         with quiet():
-            res = solver(x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+            res, stats = call_buffered(solver, x0=x_init, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     except RuntimeError:
         return None
-    if not solver.stats().get("success", False):
+    if not stats.get("success", False):
         return None
     sol = np.asarray(res["x"]).ravel()
     return (sol[:nX].reshape(K, a.nx).T, sol[nX:nX + nZ].reshape(K, a.nz).T,
@@ -584,7 +585,7 @@ def consistent_end(prob, x, z, w, p, T):
     >>> ok, np.round(xe, 12).tolist(), np.round(ze, 12).tolist()   # lam = -m g / (2 L)
     (True, [0.0, 0.0, 0.0, 0.5, 0.0, 0.0], [-2.943])
     """
-    from .consistency import project_ends, rows_of
+    from .consistency import DenseFunction, project_ends, rows_of
 
     a = prob.aug
     x, z = _given_final_values(prob, x, z)
@@ -595,7 +596,7 @@ def consistent_end(prob, x, z, w, p, T):
                                           if k == "final"]
     if not rows:
         return x, z, False
-    sub = rows_of(prob.ends_fun, rows)
+    sub = rows_of(DenseFunction(prob.ends_fun), rows)
 
     def fun(v0, vT, p_, T_):  # only the final point moves; w is held at its value
         r, J = sub(v0, vT, p_, T_)
@@ -618,7 +619,7 @@ def _start_by_projection(prob, w0, p, vg, lb, ub):
     within the bounds ``lb, ub`` (then the least-squares problem decides). A few
     evaluations of the compiled end-point function (its rows at ``t = 0``) instead of
     building and running an IPOPT problem."""
-    from .consistency import project_ends, rows_of
+    from .consistency import DenseFunction, project_ends, rows_of
 
     a = prob.aug
     nman = int(prob.man_fun.size1_out(0))
@@ -629,7 +630,7 @@ def _start_by_projection(prob, w0, p, vg, lb, ub):
     n = vg.size
     s = np.ones(n)
     s[a.nx:] = 100.0
-    sub = rows_of(prob.ends_fun, rows)
+    sub = rows_of(DenseFunction(prob.ends_fun), rows)
     w0 = np.asarray(w0, float)
 
     def fun(u, _vT, _p, _T):
@@ -671,7 +672,7 @@ def _consistent_start(prob, xg, zg, w0, p):
     try:
         solver = ca.nlpsol("init", "ipopt", {"x": v, "f": obj, "g": man},
                            {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-                            "ipopt.max_iter": 200})
+                            "ipopt.max_iter": 200, "calc_lam_p": False, "no_nlp_grad": True})
         res = solver(x0=np.concatenate([xg, zg]), lbx=np.concatenate([xlb, zlb]),
                      ubx=np.concatenate([xub, zub]), lbg=0, ubg=0)
         sol = np.asarray(res["x"]).ravel()

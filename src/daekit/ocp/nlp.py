@@ -11,7 +11,7 @@ import numpy as np
 
 from .._cio import c_output
 
-__all__ = ["NLPBuilder", "RowGroup", "quiet"]
+__all__ = ["NLPBuilder", "RowGroup", "quiet", "call_buffered"]
 
 
 @dataclass
@@ -77,6 +77,35 @@ class NLPBuilder:
 
     def G(self):
         return ca.vertcat(*self.g) if self.g else self.sym(0, 1)
+
+
+def call_buffered(solver: ca.Function, **given) -> tuple[dict, dict]:
+    """``solver(**given)`` through its raw buffers (NumPy in and out, no SWIG conversion of the
+    decision-sized vectors: 0.14 ms each way per 1600-vector); inputs not given take their
+    defaults. Returns the outputs by name (``f`` as a float) and the solver's stats.
+
+    >>> x = ca.SX.sym("x", 2)
+    >>> s = ca.nlpsol("s", "ipopt", {"x": x, "f": ca.sumsqr(x - 1), "g": x[0] + x[1]},
+    ...               {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"})
+    >>> res, stats = call_buffered(s, x0=[0.0, 0.0], lbg=0.0, ubg=0.0)
+    >>> np.round(res["x"], 8).tolist(), round(res["f"], 8), stats["success"]
+    ([0.0, 0.0], 2.0, True)
+    """
+    buf, trigger = solver.buffer()
+    keep = []
+    for i in range(solver.n_in()):
+        v = np.zeros(solver.nnz_in(i))
+        name = solver.name_in(i)
+        v[:] = np.ravel(given[name]) if name in given else solver.default_in(i)
+        keep.append(v)
+        buf.set_arg(i, memoryview(v))
+    outs = [np.zeros(solver.nnz_out(i)) for i in range(solver.n_out())]
+    for i, o in enumerate(outs):
+        buf.set_res(i, memoryview(o))
+    trigger()
+    res = {solver.name_out(i): o for i, o in enumerate(outs)}
+    res["f"] = float(res["f"][0])
+    return res, dict(buf.stats())
 
 
 @contextlib.contextmanager

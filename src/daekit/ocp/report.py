@@ -327,7 +327,8 @@ def endpoint_checks(prob, guess) -> list[str]:
             [prob.path_ub] if path is not None else []))
         try:
             solver = ca.nlpsol("chk", "ipopt", nlp, {"ipopt.print_level": 0, "print_time": False,
-                                                     "ipopt.sb": "yes", "ipopt.max_iter": 300})
+                                                     "ipopt.sb": "yes", "ipopt.max_iter": 300,
+                                                     "calc_lam_p": False, "no_nlp_grad": True})
             res = solver(x0=np.concatenate([np.clip(start, lbv, ubv), np.zeros(eqs.numel())]),
                          lbx=np.concatenate([lbv, -np.inf * np.ones(eqs.numel())]),
                          ubx=np.concatenate([ubv, np.inf * np.ones(eqs.numel())]),

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
-from .consistency import BoundaryAnalysis
+from .consistency import BoundaryAnalysis, DenseFunction
 from .nlp import quiet
 
 __all__ = ["OCPSolution", "build_solution"]
@@ -125,11 +125,8 @@ class OCPSolution:
 
     def _eval(self, expr: ca.SX) -> np.ndarray:
         a = self._aug
-        fn = ca.Function("ev", [a.t, a.x, a.z, a.w, a.p], [expr])
-        n = self.t.size
-        out = fn.map(n)(self.t.reshape(1, -1), self._X, self._Z, self._W,
-                        np.repeat(self._P.reshape(-1, 1), n, axis=1))
-        return np.asarray(out).T
+        fn = DenseFunction(ca.Function("ev", [a.t, a.x, a.z, a.w, a.p], [expr]))
+        return fn(self.t.reshape(1, -1), self._X, self._Z, self._W, self._P.reshape(-1, 1)).T
 
     def __getitem__(self, name: str) -> np.ndarray:
         els, vector = self._aug.select(name, f"solution[{name!r}]")

@@ -327,9 +327,14 @@ def main(repeat: int = 3) -> None:
         J, _, it, ok = res["ex"]
         same = ok and abs(J - sol.objective) <= 1e-8 * abs(sol.objective)
         r_ex, r_op = t["dk"][1] / t["ex"][1], t["dk"][1] / t["op"][1]
-        what = (("met" if r_ex <= 1.0 else "NOT met") if same else
-                "not judged: Opti from the expert's guess "
-                + ("reached another optimum" if ok else "failed"))
+        if same:
+            what = "met" if r_ex <= 1.0 else "NOT met"
+        elif ok and J < sol.objective:  # Opti found a better optimum: daekit loses the row
+            what = (f"NOT met: Opti from the expert's guess reached a better optimum, J = {J:.10g}"
+                    f" against daekit's {sol.objective:.10g}")
+        else:
+            what = ("not judged: Opti from the expert's guess "
+                    + (f"reached a worse optimum, J = {J:.10g}" if ok else "failed"))
         print(f"  {name:9s} expert-guess ratio {r_ex:5.2f} ({what}); "
               f"daekit-guess ratio {r_op:5.2f}")
 

@@ -60,12 +60,12 @@ def load_target(spec: str):
                          f"{type(exc).__name__}: {exc}") from None
     finally:
         sys.path.pop(0)
+    from .mechanics import LagrangianSystem
     from .model import Model
     from .reduced import ReducedDAE
 
-    def is_model(v) -> bool:  # an instance (an imported class is none), or a Lagrangian
-        return not isinstance(v, type) and (isinstance(v, (Model, ReducedDAE))
-                                            or hasattr(v, "index1"))
+    def is_model(v) -> bool:  # what _as_model and the commands accept
+        return isinstance(v, (Model, ReducedDAE, LagrangianSystem))
     if not hasattr(module, func):
         found = [n for n, v in vars(module).items() if not n.startswith("_") and is_model(v)]
         if not explicit and len(found) == 1:  # a script that builds one model at top level

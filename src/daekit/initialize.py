@@ -1084,9 +1084,7 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
     if sparse:
         own = FastFunction(ca.Function("alg_z", list(sc.args), [sc.alg, sc.Jz]))
         ccs = _ccs(own.f.sparsity_out(1))
-
-        def afun(wv, *vals):
-            return own(wv, *vals)
+        afun = own
     else:
         # d alg / dz: the columns nx: of d alg / dw, contiguous in its CCS order
         colind, row, shape, _ = _ccs(sc.jacobians["alg"].sparsity())

@@ -117,7 +117,7 @@ def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
     data = np.abs(B.data)
     data[~np.isfinite(data)] = 0.0
     counts = np.diff(B.indptr)
-    rows = np.repeat(np.arange(m), counts)
+    rows = major_index(B.indptr)
     cols = B.indices
     rmax0 = np.zeros(m)
     has = counts > 0

@@ -152,8 +152,9 @@ def test_output_projection_is_exact_on_many_rows(pendulum3d):
     r, _, init, _ = pendulum3d
     t = np.linspace(0.0, 10.0, 2001)
     plain = dk.simulate(r, t, init, rtol=1e-8, atol=1e-8)
-    proj = dk.simulate(r, t, init, rtol=1e-8, atol=1e-8, stabilization="projection")
-    assert proj.stats["output_projected"]
+    proj = dk.simulate(r, t, init, rtol=1e-8, atol=1e-8, stabilization="projection",
+                       project_output=True)
+    assert proj.stats["output_projected"] and proj.stats["rows_projected"] == t.size
     assert np.max(np.abs(proj.invariants)) < 1e-13
     assert np.max(np.abs(proj["p"] - plain["p"])) < 1e-5
 

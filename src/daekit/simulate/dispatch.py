@@ -163,6 +163,26 @@ def _check_array_start(r, t0, x0, z0, u0, pv, rtol: float = 1e-6) -> None:
         )
 
 
+def _project_recorded(proj: Projector, part, res, pv, tol: float, every: bool) -> int:
+    """Project the recorded rows of one driver part (all with ``every``, else those whose
+    largest ``|invariant|`` exceeds ``tol``); returns how many rows were projected."""
+    sy = part[0]
+    T, X, Z = res.arrays(part)
+    if not T.size:
+        return 0
+    U = sy.sig.values(T)
+    if every:
+        res.set_rows(part, *proj.project_rows(T, X, Z, U, pv))
+        return int(T.size)
+    drift = np.max(np.abs(sy.evaluator.invariants(T, X, Z, U, pv)), axis=1, initial=0.0)
+    rows = np.nonzero(drift > tol)[0]
+    if rows.size:
+        X, Z = X.copy(), Z.copy()
+        X[rows], Z[rows] = proj.project_rows(T[rows], X[rows], Z[rows], U[rows], pv)
+        res.set_rows(part, X, Z)
+    return int(rows.size)
+
+
 def simulate(
     r,
     t,
@@ -208,8 +228,8 @@ def simulate(
         Drift control. ``"baumgarte"`` integrates ``daekit.baumgarte(r, poles)``;
         ``"projection"`` integrates in one IDAS run until ``max |invariant|`` exceeds
         ``drift_tol`` and then projects (sparse Gauss--Newton, in IDAS's error-weight metric)
-        onto ``{alg = 0, invariants = 0}`` and restarts (``stats["projections"]``), and
-        projects the recorded points (``project_output``);
+        onto ``{alg = 0, invariants = 0}`` and restarts (``stats["projections"]``); returned
+        rows beyond ``drift_tol`` are projected too (``project_output``);
         ``"dummy_derivatives"`` needs ``r`` from ``reduce_index(model,
         method="dummy_derivatives")`` and re-selects the states when the selection's pivot
         degrades (``stats["selection_switches"]``); such an ``r`` is always simulated this
@@ -227,18 +247,19 @@ def simulate(
         For ``"projection"``: the largest ``|invariant|`` tolerated on the returned values;
         default :func:`daekit.simulate.projection.default_drift_tol` ``= 100 atol``. The
         integration is projected (and restarted) when its drift exceeds
-        ``max(drift_tol, 100 atol)`` (``stats["restart_drift_tol"]``): a smaller tolerance is
-        met by projecting every returned row (``project_output`` on), because IDAS re-creates
-        drift of order ``atol`` within a few steps of each restart (with
-        ``project_output=False`` the integration itself is held to ``drift_tol``, at the price
-        of many restarts).
+        ``max(drift_tol, 100 atol)`` (``stats["restart_drift_tol"]``), and the returned rows
+        whose drift still exceeds ``drift_tol`` are projected (read-only,
+        ``stats["rows_projected"]``): IDAS re-creates drift of order ``atol`` within a few
+        steps of each restart, so a tolerance below ``100 atol`` is met on the rows rather
+        than by restarting every few steps (with ``project_output=False`` the integration
+        itself is held to ``drift_tol``, at the price of many restarts).
     project_output : bool, optional
-        For ``"projection"``: also project the recorded output points onto the manifold
-        (without touching the integration, which projects only when ``drift_tol`` is crossed),
-        so the returned values satisfy the invariants to rounding. Default: where it is cheap
-        (``nx + nz + invariants <= 96``: batched dense Gauss--Newton); on larger systems the
-        recorded points keep the integration's drift, below ``drift_tol``.
-        ``stats["max_drift_integrated"]`` is the largest drift the integration itself had.
+        For ``"projection"``: ``True`` projects every returned row onto the manifold, so the
+        values satisfy the invariants to rounding (about 1 microsecond per row on the 3D
+        pendulum: as much as the integration itself at 2001 points); the default (None)
+        projects only the rows whose drift exceeds ``drift_tol``; ``False`` none (the
+        integration restarts at ``drift_tol`` itself). ``stats["max_drift_integrated"]`` is
+        the largest drift the integration itself had at its check points.
     monitors : sequence of daekit.simulate.driver.Monitor
         Further monitors on the driver (user events; see :mod:`daekit.simulate.driver`).
     events : bool
@@ -395,14 +416,9 @@ def simulate(
         # below the default (100 atol) IDAS's own local errors re-create the drift within a
         # few steps of every restart: restarting that often sends BDF back to order 1 each
         # time (195 s for 100 s of a rigid body at drift_tol = 1e-10, and less accurate). The
-        # integration is then restarted at the default level, and drift_tol is met on every
-        # returned row by projecting the rows (read-only, to rounding)
-        restart_tol = max(tol, default_drift_tol(rtol, atol))
-        if tol < restart_tol:
-            if project_output is False:  # asked for explicitly: restart at drift_tol itself
-                restart_tol = tol
-            else:
-                project_output = True
+        # integration is then restarted at the default level, and drift_tol is met on the
+        # returned rows by projecting the rows that exceed it (read-only)
+        restart_tol = tol if project_output is False else max(tol, default_drift_tol(rtol, atol))
         inv0 = system.evaluator.invariants(tg[:1], x0[None, :], z0[None, :], U[:1], pv)
         if np.max(np.abs(inv0), initial=0.0) > tol:
             x0, z0, _ = proj(tg[0], x0, z0, U[0], pv)
@@ -410,19 +426,19 @@ def simulate(
         res = Driver(system, tg, x0, z0, pv, [mon, *monitors], progress=progress,
                      label="projection").run()
         nproj = proj.stats["projections"]
-        if project_output is None:
-            project_output = proj.nx + proj.nz + proj.nh <= 96
-        if project_output:
-            # the recorded rows onto the manifold too (read-only: the integration is not
-            # touched), so the results satisfy the invariants to rounding
+        rows_projected = 0
+        if project_output is not False:
+            # the recorded rows onto the manifold (read-only: the integration is not
+            # touched): every row with project_output=True, else those whose drift exceeds
+            # drift_tol (the monitor looks at its check points only, and restarts at
+            # max(drift_tol, 100 atol)), so every returned row is within drift_tol
             for part in res.parts:
-                sy = part[0]
-                T, X, Z = res.arrays(part)
-                if T.size:
-                    res.set_rows(part, *proj.project_rows(T, X, Z, sy.sig.values(T), pv))
+                rows_projected += _project_recorded(proj, part, res, pv, tol,
+                                                    every=project_output is True)
+        traj = res.trajectory()
         traj = res.trajectory()
         extra = {"projections": nproj, "drift_tol": tol, "restart_drift_tol": restart_tol,
-                 "output_projected": bool(project_output),
+                 "output_projected": rows_projected > 0, "rows_projected": rows_projected,
                  "max_projection_correction": mon.max_correction,
                  "max_drift_integrated": mon.max_drift}
     else:

@@ -315,6 +315,14 @@ class Driver:
         #: the system being integrated now (monitors may switch it, e.g. dummy derivatives)
         self.current = system
         self._tg_key: bytes | None = None
+        #: an estimate of x'' at the next restart where the solution goes on smoothly (the
+        #: first step's rule, :meth:`System.step0`), None after a jump or a switch of systems
+        self._xddot: np.ndarray | None = None
+        #: False once a restart with that first step was followed by a firing in its first
+        #: check interval (a drift tolerance far below the error weights: each step of
+        #: tolerance size re-creates the drift; IDAS's tiny first step then does better)
+        self._curved_starts = True
+        self._hinted = False
 
     # ------------------------------------------------------------------ services
     def _count(self, st: dict) -> None:
@@ -350,8 +358,10 @@ class Driver:
         first_exc = None
         for k, (extra, consistent) in enumerate(tries):
             try:
+                hint = self._xddot if k == 0 and self._curved_starts else None
+                self._hinted = hint is not None
                 X, Z, st = system.run(grid, x, z, self.pv, extra, consistent=consistent,
-                                      span=self.span)
+                                      span=self.span, xddot0=hint)
             except IntegrationFailure as exc:
                 first_exc = first_exc or exc
                 self.stats["failed_attempts"] = self.stats.get("failed_attempts", 0) + 1
@@ -419,6 +429,20 @@ class Driver:
                     glo *= 0.5
                 side = 1
         return lo, np.asarray(xlo, float).copy(), np.asarray(zlo, float).copy()
+
+    def curvature(self, seg: Segment, te: float) -> np.ndarray | None:
+        """``x''`` at ``te`` estimated from the segment's check rows before it (they depend on
+        the segment only, so the restart does not depend on the output grid): the difference
+        of ``ode`` at the last two check rows at or before ``te``."""
+        rows = np.nonzero(seg.check)[0]
+        rows = rows[seg.t[rows] <= te]
+        if rows.size < 2:
+            return None
+        i, j = int(rows[-2]), int(rows[-1])
+        sy = seg.system
+        f = [sy.xdot(float(seg.t[k]), seg.X[k], seg.Z[k], sy.sig.value(float(seg.t[k])),
+                     self.pv) for k in (i, j)]
+        return (f[1] - f[0]) / float(seg.t[j] - seg.t[i])
 
     def consistent(self, system: System, t: float, x, z) -> np.ndarray:
         """``z`` re-solved from ``alg(t, x, z) = 0`` (Newton)."""
@@ -562,6 +586,7 @@ class Driver:
                     t, x, z = float(grid[-1]), X[-1].copy(), Z[-1].copy()
                     if t < tg[-1]:
                         z = self.consistent(system, t, x, z)
+                        self._xddot = self.curvature(seg, t)
                     k = j
                     bar.update(t)
                     if t < tg[-1]:
@@ -572,12 +597,17 @@ class Driver:
                             if act is not None:
                                 if act.label is not None:
                                     result.events.append((t, act.label))
+                                if act.record or (act.system is not None
+                                                  and act.system is not system):
+                                    self._xddot = None
                                 system, x, z, cur = self._apply(act, system, t, x, z, result,
                                                                 cur)
                     L = self._next_length(states, 4.0 * L)
                     continue
                 mi, f, act = fired
                 te = float(f.t)
+                if self._hinted and te - t <= 1.01 * (float(grid[-1]) - t) / self.checks:
+                    self._curved_starts = False
                 upto = f.index if f.index >= 0 else int(np.searchsorted(grid, te, "right")) - 1
                 self._record(cur, seg, upto, inclusive=False, before=te)
                 for mj, m in enumerate(self.monitors):
@@ -595,7 +625,11 @@ class Driver:
                         f"simulate: the monitor {self.monitors[mi].name!r} fires again and "
                         f"again at t = {te:g} without time advancing",
                         t=te, trajectory=result.trajectory())
+                system0 = system
                 system, x, z, cur = self._apply(act, system, te, f.x, f.z, result, cur)
+                # the solution goes on smoothly unless the state jumps or the system switches
+                smooth = system is system0 and not act.record
+                self._xddot = self.curvature(seg, te) if smooth else None
                 if act.record or at_output:
                     _push(cur, te, x, z)
                     if at_output:

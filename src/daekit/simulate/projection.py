@@ -31,6 +31,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import SimulationError
+from ..numerics import FastFunction
 from .driver import Action, Firing, Monitor, Segment
 from .vectorized import evaluate_columns, evaluate_rows, fast_call, rows_equal, spd_inverse
 
@@ -97,6 +98,7 @@ class Projector:
         self._lu = None
         self._dense = None
         self._symbolic = False
+        self._step_fast: FastFunction | None = None
         self._maps: dict[int, ca.Function] = {}
 
     def set_tolerances(self, rtol: float, atol: float) -> None:
@@ -139,6 +141,51 @@ class Projector:
         w0 = w.copy()
         u = np.asarray(u, dtype=float).ravel()
         p = np.asarray(p, dtype=float).ravel()
+        if self._dense is None and self.nx + self.nz + self.nh <= 96:
+            self._build(u.size, p.size)
+        if self._symbolic:
+            w, res = self._point_by_steps(t, w, u, p, tol, max_iter)
+        else:
+            w, res = self._point_by_kkt(t, w, u, p, tol, max_iter, reuse)
+        if not np.isfinite(res) or res > 1e-8 * (1.0 + float(np.max(np.abs(w), initial=0.0))):
+            raise SimulationError(
+                f"projection onto the invariants failed at t = {t:g} (residual {res:.3g}); the "
+                "constraint Jacobian may have lost rank there, or the state left the manifold too "
+                "far: use tighter tolerances or a smaller drift_tol",
+                t=float(t),
+            )
+        self.stats["projections"] += 1
+        dx = float(np.max(np.abs(w[: self.nx] - w0[: self.nx]), initial=0.0))
+        return w[: self.nx], w[self.nx:], dx
+
+    def _point_by_steps(self, t, w, u, p, tol, max_iter):
+        """Gauss--Newton at one point by the generated step function (small systems: one
+        buffered call per iteration, microseconds)."""
+        if self._step_fast is None:
+            self._step_fast = FastFunction(self._dense)
+        nx = self.nx
+        d = np.empty(w.size)
+        if self.rtol is not None:
+            sx = self.atol + self.rtol * np.abs(w[:nx])
+            d[:nx] = sx * sx  # D^+ on x (its scale does not matter); z: free (large)
+        else:
+            d[:nx] = 1.0 / self.weights
+        d[nx:] = 1e8 * np.max(d[:nx], initial=1.0)
+        tt = np.array([float(t)])
+        res = np.inf
+        for _ in range(max_iter + 1):
+            hv, dw = self._step_fast(tt, w, u, p, d)[:2]
+            res = float(np.max(np.abs(hv), initial=0.0))
+            if not np.isfinite(res) or res <= tol * (1.0 + float(np.max(np.abs(w), initial=0.0))):
+                break
+            if not np.all(np.isfinite(dw)):
+                break
+            w = w + dw
+            self.stats["projection_iterations"] += 1
+        return w, res
+
+    def _point_by_kkt(self, t, w, u, p, tol, max_iter, reuse):
+        """Gauss--Newton at one point with the sparse KKT matrix (sparse LU)."""
         dmet = self._metric(w[: self.nx])
         res = np.inf
         n = w.size
@@ -162,16 +209,7 @@ class Projector:
         else:
             res = float(np.max(np.abs(self._h(t, w, u, p)), initial=0.0))
         self._lu = lu
-        if not np.isfinite(res) or res > 1e-8 * (1.0 + float(np.max(np.abs(w), initial=0.0))):
-            raise SimulationError(
-                f"projection onto the invariants failed at t = {t:g} (residual {res:.3g}); the "
-                "constraint Jacobian may have lost rank there, or the state left the manifold too "
-                "far: use tighter tolerances or a smaller drift_tol",
-                t=float(t),
-            )
-        self.stats["projections"] += 1
-        dx = float(np.max(np.abs(w[: self.nx] - w0[: self.nx]), initial=0.0))
-        return w[: self.nx], w[self.nx:], dx
+        return w, res
 
 
     def project_rows(self, T, X, Z, U, p, iters: int = 6, chunk: int = 4096):
@@ -320,11 +358,10 @@ class Projector:
 
     def _symbolic_chunk(self, T, X, Z, U, p, iters):
         """Gauss--Newton by the generated step functions, on all rows at once in column layout
-        (``(size, rows)``; inputs the same on every row passed once): a full step and a
-        simplified one (the first step's factor) for every row, which from within drift_tol of
-        the manifold leaves rounding; rows whose second correction was not negligible go on
-        with full steps while ``h`` says they need them. Rows that end non-finite stay as they
-        were."""
+        (``(size, rows)``; inputs the same on every row passed once): a full step for every
+        row, then simplified steps (the first step's factor: a third of the cost) on the rows
+        whose ``h`` is not yet at rounding, full steps again for rows still off after three.
+        Rows that end non-finite stay as they were."""
         nx, nz = self.nx, self.nz
         N = T.size
         cj = self._maps.setdefault("hj", {})
@@ -350,27 +387,28 @@ class Projector:
         if not np.isfinite(H).all() or (_colmax(np.abs(H)) < tiny).all():
             return np.array(X, dtype=float), np.array(Z, dtype=float)
         Wc += dW
-        # a simplified step with the first step's factor on every row: from within drift_tol
-        # of the manifold it leaves rounding (its error is ~ |dw1| |dw2|); rows whose second
-        # correction is not negligible go on with full steps, checked by h
-        H2 = evaluate_columns(self._honly, [Tc, Wc, Uc, Pc], N, ch)[0]
-        dW = evaluate_columns(self._simplified, [Lf, JDf, H2], N,
-                              self._maps.setdefault("simple", {}))[0]
-        if np.isfinite(dW).all():
-            Wc += dW
-            rows = np.nonzero(_colmax(np.abs(dW)) > 1e-10 * (1 + _colmax(np.abs(Wc))))[0]
-        else:
-            rows = np.arange(N)
-        for _ in range(2, iters):
-            if rows.size == 0:
-                break
+        # simplified steps with the first step's factor (from within drift_tol of the manifold
+        # each leaves about |dw1| times the last correction), on the rows whose h says they
+        # need one; a row still off after three gets a full step (a new factor) instead
+        simple = self._maps.setdefault("simple", {})
+        rows = None  # all rows (no fancy indexing while every row is iterated)
+        for it in range(iters):
+            n_rows = N if rows is None else rows.size
             Hr = evaluate_columns(self._honly, [cols(a, rows) for a in (Tc, Wc, Uc, Pc)],
-                                  rows.size, ch)[0]
-            rows = rows[_colmax(np.abs(Hr)) >= tiny[rows]]
+                                  n_rows, ch)[0]
+            keep = _colmax(np.abs(Hr)) >= (tiny if rows is None else tiny[rows])
+            rows = np.nonzero(keep)[0] if rows is None else rows[keep]
+            Hr = Hr[:, keep]
             if rows.size == 0:
                 break
-            dW = evaluate_columns(self._dense, [cols(a, rows) for a in (Tc, Wc, Uc, Pc, Dc)],
-                                  rows.size, cj)[1]
+            if it < 3:
+                dW = evaluate_columns(self._simplified, [Lf[:, rows], JDf[:, rows], Hr],
+                                      rows.size, simple)[0]
+            else:
+                dW, L2, JD2 = evaluate_columns(
+                    self._dense, [cols(a, rows) for a in (Tc, Wc, Uc, Pc, Dc)], rows.size,
+                    cj)[1:]
+                Lf[:, rows], JDf[:, rows] = L2, JD2
             if not np.isfinite(dW).all():
                 break
             Wc[:, rows] += dW

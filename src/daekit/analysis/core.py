@@ -89,6 +89,11 @@ _Point = TestPoint
 _check_point = check_point
 
 
+class _Undecided(Exception):
+    """The derivative array could not decide (``soft`` mode): the message says why, a phrase
+    the account of an unconfirmed index quotes."""
+
+
 class _NonFinite(Exception):
     """A Jacobian evaluated at the test point has NaN or inf entries in the given rows."""
 
@@ -494,7 +499,7 @@ def _too_big(model: Model, rows, what: str, singular: list[str] | None) -> Model
 
 
 def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, what: str,
-                      soft: bool = False, top_first: bool = False, why: dict | None = None
+                      soft: bool = False, top_first: bool = False
                       ) -> DerivativeArrayResult | None:
     """:func:`differential_index` on the square subsystem ``rows`` x ``cols`` (which must not
     involve other unknowns). One sparse Jacobian per level (earlier levels do not contain the
@@ -508,12 +513,10 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
     Where no consistent point of the top level is found that way, the levels are tested in
     turn as without ``top_first``.
 
-    ``why`` (with ``soft``): a dict that gets ``why["unknown"]``, a phrase, where the result
-    None does not mean "not determined up to ``max_index``" but that this was not decided
-    (the array grew too long, or its top level was tested at an inconsistent point).
+    With ``soft`` the result None means "not determined up to ``max_index``"; where this was
+    not decided (the array grew too long, or its top level was tested at an inconsistent
+    point) :class:`_Undecided` is raised, its message saying why.
     """
-    if why is None:
-        why = {}
     rows = [int(i) for i in rows]
     cols = [int(j) for j in cols]
     n = len(cols)
@@ -560,10 +563,9 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
         if (k + 1) * len(rows) <= ARRAY_LIMIT and not swollen:
             return False
         if soft:
-            why["unknown"] = (f"its derivative array grows beyond {ARRAY_LIMIT} rows or "
-                              f"{max(ARRAY_NODES, ARRAY_GROWTH * grown['first'])} expression "
-                              "nodes")
-            return True
+            raise _Undecided(f"its derivative array grows beyond {ARRAY_LIMIT} rows or "
+                             f"{max(ARRAY_NODES, ARRAY_GROWTH * grown['first'])} expression "
+                             "nodes")
         if swollen:
             raise ModelError(
                 f"model {model.name!r}: {what}: the derivative array of the {len(rows)} "
@@ -671,17 +673,16 @@ def _derivative_array(model: Model, rows, cols, m_all, pt: _Point, max_index, wh
             if soft and not consistent_at.get(k, True):
                 # determined at a point off the solutions: ranks there decide nothing (they
                 # could lower the index wrongly), so the index stays unconfirmed
-                why["unknown"] = (f"no consistent point of its derivative array at level {k} "
-                                  "was found")
-                return None
+                raise _Undecided(f"no consistent point of its derivative array at level {k} "
+                                 "was found")
             r_full = max(numeric_rank(f)[0] for f in fulls) if len(state_j) else 0
             constraints = (r_full - r_all) if len(state_j) else 0
             return DerivativeArrayResult(k, len(state_j) - constraints, ranks, constraints,
                                          [eq_names[i] for i in rows])
     if soft:
         if not consistent_at.get(max_index, True):  # (the level tested last)
-            why["unknown"] = (f"no consistent point of its derivative array to level "
-                              f"{max_index} was found")
+            raise _Undecided(f"no consistent point of its derivative array to level "
+                             f"{max_index} was found")
         return None
     if consistent_at and not all(consistent_at.values()):
         # ranks off the solutions: say so first (x^2 + 1 = 0 stalls where 2 x = 0)
@@ -1258,16 +1259,15 @@ def _confirm_index(model: Model, eq_lab, unk_lab, skip, c, d, pt: _Point, floor:
                    f"{count(len(cols), 'unknown')} times {nu} levels exceed the "
                    f"{CONFIRM_ARRAY_LIMIT} ")
             return None, [(eqs, nu, why + "checked against the derivative array")]
-        why: dict = {}
         try:
             res = _derivative_array(model, rows, cols, m_all, pt, nu - 1, "analyze", soft=True,
-                                    top_first=True, why=why)
+                                    top_first=True)
+        except _Undecided as exc:
+            return None, [(eqs, nu, str(exc))]
         except (ModelError, _NonFinite) as exc:
-            res, why["unknown"] = None, f"its derivative array could not be evaluated ({exc})"
-        if res is None:
-            # this part has the structural index (the model's index stays), or it was not
-            # decided
-            return None, ([(eqs, nu, why["unknown"])] if "unknown" in why else [])
+            return None, [(eqs, nu, f"its derivative array could not be evaluated ({exc})")]
+        if res is None:  # this part has the structural index (the model's index stays)
+            return None, []
         found.append(res.index)
         lowered.append((eqs, nu, res.index))
     index = max(max(found), floor)

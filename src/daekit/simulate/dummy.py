@@ -206,7 +206,10 @@ def first_degraded(rr, T, X, Z, U, p, lim: float, q_prev: float | None = None,
         Fa = np.ascontiguousarray(A).reshape(n, -1)  # rows flattened: (n, rows * candidates)
         sel = (np.arange(A.shape[1])[:, None] * A.shape[2] + np.asarray(c)[None, :]).ravel()
         # Weyl from the nearest anchor a: |sigma_k(A_i) - sigma_k(A_a)| <= ||A_i - A_a||_F
-        k = np.minimum((np.arange(n) + stride // 2) // stride, anchors.size - 1)
+        rows = np.arange(n)
+        j = np.clip(np.searchsorted(anchors, rows), 1, anchors.size - 1)
+        k = np.where(rows - anchors[j - 1] <= anchors[j] - rows, j - 1, j)  # nearest (the
+        # last anchor, n - 1, included: the rows of a last partial stride are nearer to it)
         dA, dS = _fro(Fa - Fa[anchors[k]], sel)
         m, sv = amax[k], amin[k]
         with np.errstate(invalid="ignore"):

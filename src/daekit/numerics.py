@@ -49,7 +49,7 @@ __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated"
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
            "sparse_rank_deficiency", "sparse_deficiency_rcond", "to_scipy", "SparseFunction",
            "FastFunction", "DenseFunction", "fast_call", "redundant_rows", "VANISH",
-           "vanishing_removed", "major_index"]
+           "vanishing_removed", "major_index", "PatternCache", "Segments"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -137,37 +137,96 @@ def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
     return np.exp2(er), np.exp2(ec)
 
 
-_SEG = threading.local()  # the last _Segments, per thread (one pattern per Gauss-Newton run)
+class PatternCache:
+    """What is built from a sparsity pattern alone (orderings, symbolic factorizations), kept
+    per thread for the last ``size`` patterns: the iterations of one Gauss--Newton run share
+    one pattern, and threads never share an entry. The one per-thread cache of daekit's
+    sparse linear algebra (the Curtis--Reid factorizations, the Ruiz segments, the KKT
+    pattern, the banded ordering of ``J J^T``, the choice of the least-norm step's path).
+
+    >>> import numpy as np
+    >>> c = PatternCache(2)
+    >>> key = c.key(3, np.array([0, 1, 1]))
+    >>> c.get(key, lambda: "made"), c.get(key, lambda: "made again")
+    ('made', 'made')
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._local = threading.local()
+
+    @staticmethod
+    def key(*parts) -> tuple:
+        """A hashable key of sizes and index arrays (arrays by their bytes)."""
+        return tuple(p.tobytes() if isinstance(p, np.ndarray) else p for p in parts)
+
+    def get(self, key: tuple, build, keep=None):
+        """The entry of ``key``, made by ``build()`` when missing and kept unless
+        ``keep(entry)`` is false (the oldest pattern leaves when ``size`` are kept)."""
+        made = self._local.__dict__.get("made")
+        if made is None:
+            made = self._local.made = {}
+        hit = made.get(key)
+        if hit is None:
+            hit = build()
+            if keep is None or keep(hit):
+                if len(made) >= self.size:
+                    made.pop(next(iter(made)))
+                made[key] = hit
+        return hit
 
 
-def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> _Segments:
-    """:class:`_Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    hit = _SEG.__dict__.get("last")
-    if hit is not None and hit[0] == key:
-        return hit[1]
-    seg = _Segments(m, n, rows, cols)
-    _SEG.last = (key, seg)
-    return seg
+_SEGMENTS = PatternCache(1)  # one pattern per Gauss-Newton run
 
 
-class _Segments:
-    """Row and column maxima over the nonzeros ``(rows, cols)`` (``rows`` sorted)."""
+def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> Segments:
+    """:class:`Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
+    return _SEGMENTS.get(PatternCache.key(m, n, rows, cols), lambda: Segments(m, n, rows, cols))
+
+
+class Segments:
+    """Row and column maxima over the nonzeros ``(rows, cols)`` of an ``m x n`` matrix (any
+    order: the permutations to row and to column order are found once), for many value
+    vectors of one pattern.
+
+    >>> import numpy as np
+    >>> s = Segments(3, 2, np.array([2, 0, 2]), np.array([0, 0, 1]))
+    >>> s.maxima(np.array([1.0, 5.0, 3.0])).tolist(), s.row_max(np.array([1.0, 5.0, 3.0])).tolist()
+    ([5.0, -inf, 3.0, 5.0, 3.0], [5.0, 0.0, 3.0])
+    """
 
     def __init__(self, m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> None:
         self.m, self.n = m, n
         self.rows, self.cols = rows, cols
-        self.r_start, self.r_has = _starts(rows, m)
-        self.c_perm = np.argsort(cols, kind="stable")
-        self.c_start, self.c_has = _starts(cols[self.c_perm], n)
+        self.r_perm, self.r_start, self.r_has = _groups(rows, m)
+        self.c_perm, self.c_start, self.c_has = _groups(cols, n)
 
     def maxima(self, S: np.ndarray) -> np.ndarray:
         """``[row maxima, column maxima]`` of the values ``S`` (``-inf`` for empty ones)."""
         out = np.full(self.m + self.n, -np.inf)
         if S.size:
-            out[: self.m][self.r_has] = np.maximum.reduceat(S, self.r_start)
-            out[self.m:][self.c_has] = np.maximum.reduceat(S[self.c_perm], self.c_start)
+            out[: self.m][self.r_has] = _reduce_max(S, self.r_perm, self.r_start)
+            out[self.m:][self.c_has] = _reduce_max(S, self.c_perm, self.c_start)
         return out
+
+    def row_max(self, S: np.ndarray) -> np.ndarray:
+        """The row maxima of the values ``S`` (0 for empty rows)."""
+        out = np.zeros(self.m)
+        if S.size:
+            out[self.r_has] = _reduce_max(S, self.r_perm, self.r_start)
+        return out
+
+
+def _groups(idx: np.ndarray, k: int):
+    """``(perm, starts, has)``: the stable permutation that sorts ``idx`` (None where it is
+    sorted already) and :func:`_starts` of the sorted indices."""
+    perm = None if idx.size < 2 or bool((idx[1:] >= idx[:-1]).all()) else np.argsort(
+        idx, kind="stable")
+    return (perm, *_starts(idx if perm is None else idx[perm], k))
+
+
+def _reduce_max(S: np.ndarray, perm, starts: np.ndarray) -> np.ndarray:
+    return np.maximum.reduceat(S if perm is None else S[perm], starts)
 
 
 def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -182,7 +241,7 @@ def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.nonzero(first)[0], has
 
 
-def _ruiz_log_sparse(L, seg: _Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
+def _ruiz_log_sparse(L, seg: Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_ruiz_log` over the nonzeros of a sparse matrix."""
     return _ruiz_sweeps(lambda er, ec: seg.maxima(L + er[seg.rows] + ec[seg.cols]),
                         seg.m, er, ec)
@@ -376,6 +435,7 @@ def _curtis_reid_matrix(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> n
 #: Dense Curtis--Reid factorizations kept per thread (by pattern): Gauss--Newton on a small
 #: system equilibrates Jacobians of one or two patterns at every iterate.
 CR_DENSE_PATTERNS = 32
+_CR_DENSE = PatternCache(CR_DENSE_PATTERNS)
 
 
 def _curtis_reid_dense(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -383,27 +443,23 @@ def _curtis_reid_dense(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
     ``CR_DENSE_PATTERNS`` patterns of this thread (the matrix depends on the pattern only);
     solved by ``getrs`` this is ``gesv``, bit for bit. None if singular (never: the ridge).
     (scipy.linalg is imported here: it loads on first use, not with daekit.)"""
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    cache = _CR.__dict__.setdefault("dense", {})
-    hit = cache.get(key)
-    if hit is None:
+
+    def factor():
         from scipy.linalg.lapack import dgetrf
 
         lu, piv, info = dgetrf(_curtis_reid_matrix(m, n, rows, cols))
-        if info != 0:  # pragma: no cover - the ridge keeps K regular
-            return None
-        if len(cache) >= CR_DENSE_PATTERNS:
-            cache.pop(next(iter(cache)))
-        hit = cache[key] = (lu, piv)
-    return hit
+        return (lu, piv) if info == 0 else None  # (never singular: the ridge)
+
+    return _CR_DENSE.get(PatternCache.key(m, n, rows, cols), factor,
+                         keep=lambda hit: hit is not None)
 
 
-_CR = threading.local()  # factorizations of Curtis--Reid's normal equations, per pattern
 #: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
 #: Jacobian of one pattern at every iterate.
 CR_PATTERNS = 4
 #: ... each with at most this many nonzeros in its factors (about 24 MB)
 CR_KEEP_NNZ = 2_000_000
+_CR_LU = PatternCache(CR_PATTERNS)
 
 
 def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -412,21 +468,18 @@ def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
     for the last ``CR_PATTERNS`` patterns of this thread."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     cols = np.ascontiguousarray(cols, dtype=np.int64)
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    cache = _CR.__dict__.setdefault("lu", {})
-    lu = cache.get(key)
-    if lu is None:
+
+    def factor():
         k = rows.size
         P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
         rc = np.bincount(rows, minlength=m).astype(float)
         cc = np.bincount(cols, minlength=n).astype(float)
         K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
-        lu = sp.linalg.splu(K, permc_spec="COLAMD")
-        if lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ:  # kept only while it is small in memory
-            if len(cache) >= CR_PATTERNS:
-                cache.pop(next(iter(cache)))
-            cache[key] = lu
-    return lu
+        return sp.linalg.splu(K, permc_spec="COLAMD")
+
+    # (kept only while it is small in memory)
+    return _CR_LU.get(PatternCache.key(m, n, rows, cols), factor,
+                      keep=lambda lu: lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ)
 
 
 def equilibrated(A):

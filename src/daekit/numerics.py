@@ -23,7 +23,10 @@ Functions: :func:`equilibrate` (the scale factors), :func:`rank` / :func:`rank_i
 SVD; sparse input is densified only up to ``DENSE_LIMIT`` rows, beyond that the LU-based
 :func:`sparse_rank_deficiency` answers), :func:`null_space` and :func:`left_null_space`,
 :func:`sparse_nonsingular` (the cheap sparse-LU test), :func:`to_scipy` (CasADi ``DM`` to a
-SciPy CSC matrix).
+SciPy CSC matrix). Also the one buffered CasADi call: :func:`fast_call` (once) and
+:class:`FastFunction` (its buffers kept), with :class:`DenseFunction` and
+:class:`SparseFunction` on it; and :class:`PatternCache`, the one per-thread cache of what is
+built from a sparsity pattern.
 
 Example
 -------

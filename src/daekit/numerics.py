@@ -165,17 +165,20 @@ class PatternCache:
 
     def get(self, key: tuple, build, keep=None):
         """The entry of ``key``, made by ``build()`` when missing and kept unless
-        ``keep(entry)`` is false (the oldest pattern leaves when ``size`` are kept)."""
+        ``keep(entry)`` is false (the oldest pattern leaves when ``size`` are kept). Keys are
+        compared, never hashed (hashing a large pattern's bytes at every lookup cost more
+        than the comparison with the few patterns kept)."""
         made = self._local.__dict__.get("made")
         if made is None:
-            made = self._local.made = {}
-        hit = made.get(key)
-        if hit is None:
-            hit = build()
-            if keep is None or keep(hit):
-                if len(made) >= self.size:
-                    made.pop(next(iter(made)))
-                made[key] = hit
+            made = self._local.made = []
+        for k, hit in reversed(made):
+            if k == key:
+                return hit
+        hit = build()
+        if keep is None or keep(hit):
+            if len(made) >= self.size:
+                del made[0]
+            made.append((key, hit))
         return hit
 
 

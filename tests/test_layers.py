@@ -101,3 +101,22 @@ def test_no_import_cycle_and_no_private_names_across_modules():
             visit(v, [v])
     assert cycles == [], f"import cycles: {cycles}"
     assert private == [], f"private names imported across modules: {private}"
+
+
+def test_casadi_buffers_are_bound_in_numerics_only():
+    """One place per concern: a CasADi Function's raw buffers (``Function.buffer()``) are
+    bound only by ``numerics`` (``fast_call``, ``FastFunction``); every other module calls
+    those (found by the AST: any ``.buffer()`` call)."""
+    import ast
+    from pathlib import Path
+
+    import daekit
+
+    root = Path(daekit.__file__).parent
+    found = []
+    for f in sorted(root.rglob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr == "buffer"):
+                found.append(f"{f.relative_to(root)}:{node.lineno}")
+    assert found and all(x.startswith("numerics.py:") for x in found), found

@@ -23,7 +23,10 @@ Functions: :func:`equilibrate` (the scale factors), :func:`rank` / :func:`rank_i
 SVD; sparse input is densified only up to ``DENSE_LIMIT`` rows, beyond that the LU-based
 :func:`sparse_rank_deficiency` answers), :func:`null_space` and :func:`left_null_space`,
 :func:`sparse_nonsingular` (the cheap sparse-LU test), :func:`to_scipy` (CasADi ``DM`` to a
-SciPy CSC matrix).
+SciPy CSC matrix). Also the one buffered CasADi call: :func:`fast_call` (once) and
+:class:`FastFunction` (its buffers kept), with :class:`DenseFunction` and
+:class:`SparseFunction` on it; and :class:`PatternCache`, the one per-thread cache of what is
+built from a sparsity pattern.
 
 Example
 -------
@@ -38,6 +41,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as ca
@@ -47,7 +51,8 @@ import scipy.sparse as sp
 __all__ = ["RANK_RTOL", "DENSE_LIMIT", "RankInfo", "equilibrate", "equilibrated", "rank",
            "rank_info", "null_space", "left_null_space", "sparse_nonsingular",
            "sparse_rank_deficiency", "sparse_deficiency_rcond", "to_scipy", "SparseFunction",
-           "FastFunction", "redundant_rows", "VANISH", "vanishing_removed", "major_index"]
+           "FastFunction", "DenseFunction", "fast_call", "redundant_rows", "VANISH",
+           "vanishing_removed", "major_index", "PatternCache", "Segments"]
 
 #: Relative tolerance of every rank decision (see the module docstring).
 RANK_RTOL = 1e3 * np.finfo(float).eps
@@ -135,37 +140,99 @@ def _equilibrate_sparse(A) -> tuple[np.ndarray, np.ndarray]:
     return np.exp2(er), np.exp2(ec)
 
 
-_SEG = threading.local()  # the last _Segments, per thread (one pattern per Gauss-Newton run)
+class PatternCache:
+    """What is built from a sparsity pattern alone (orderings, symbolic factorizations), kept
+    per thread for the last ``size`` patterns: the iterations of one Gauss--Newton run share
+    one pattern, and threads never share an entry. The one per-thread cache of daekit's
+    sparse linear algebra (the Curtis--Reid factorizations, the Ruiz segments, the KKT
+    pattern, the banded ordering of ``J J^T``, the choice of the least-norm step's path).
+
+    >>> import numpy as np
+    >>> c = PatternCache(2)
+    >>> key = c.key(3, np.array([0, 1, 1]))
+    >>> c.get(key, lambda: "made"), c.get(key, lambda: "made again")
+    ('made', 'made')
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._local = threading.local()
+
+    @staticmethod
+    def key(*parts) -> tuple:
+        """A hashable key of sizes and index arrays (arrays by their bytes)."""
+        return tuple(p.tobytes() if isinstance(p, np.ndarray) else p for p in parts)
+
+    def get(self, key: tuple, build, keep=None):
+        """The entry of ``key``, made by ``build()`` when missing and kept unless
+        ``keep(entry)`` is false (the oldest pattern leaves when ``size`` are kept). Keys are
+        compared, never hashed (hashing a large pattern's bytes at every lookup cost more
+        than the comparison with the few patterns kept)."""
+        made = self._local.__dict__.get("made")
+        if made is None:
+            made = self._local.made = []
+        for k, hit in reversed(made):
+            if k == key:
+                return hit
+        hit = build()
+        if keep is None or keep(hit):
+            if len(made) >= self.size:
+                del made[0]
+            made.append((key, hit))
+        return hit
 
 
-def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> _Segments:
-    """:class:`_Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    hit = _SEG.__dict__.get("last")
-    if hit is not None and hit[0] == key:
-        return hit[1]
-    seg = _Segments(m, n, rows, cols)
-    _SEG.last = (key, seg)
-    return seg
+_SEGMENTS = PatternCache(1)  # one pattern per Gauss-Newton run
 
 
-class _Segments:
-    """Row and column maxima over the nonzeros ``(rows, cols)`` (``rows`` sorted)."""
+def _segments(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> Segments:
+    """:class:`Segments` of the pattern ``(rows, cols)``, reused for the same pattern."""
+    return _SEGMENTS.get(PatternCache.key(m, n, rows, cols), lambda: Segments(m, n, rows, cols))
+
+
+class Segments:
+    """Row and column maxima over the nonzeros ``(rows, cols)`` of an ``m x n`` matrix (any
+    order: the permutations to row and to column order are found once), for many value
+    vectors of one pattern.
+
+    >>> import numpy as np
+    >>> s = Segments(3, 2, np.array([2, 0, 2]), np.array([0, 0, 1]))
+    >>> s.maxima(np.array([1.0, 5.0, 3.0])).tolist(), s.row_max(np.array([1.0, 5.0, 3.0])).tolist()
+    ([5.0, -inf, 3.0, 5.0, 3.0], [5.0, 0.0, 3.0])
+    """
 
     def __init__(self, m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> None:
         self.m, self.n = m, n
         self.rows, self.cols = rows, cols
-        self.r_start, self.r_has = _starts(rows, m)
-        self.c_perm = np.argsort(cols, kind="stable")
-        self.c_start, self.c_has = _starts(cols[self.c_perm], n)
+        self.r_perm, self.r_start, self.r_has = _groups(rows, m)
+        self.c_perm, self.c_start, self.c_has = _groups(cols, n)
 
     def maxima(self, S: np.ndarray) -> np.ndarray:
         """``[row maxima, column maxima]`` of the values ``S`` (``-inf`` for empty ones)."""
         out = np.full(self.m + self.n, -np.inf)
         if S.size:
-            out[: self.m][self.r_has] = np.maximum.reduceat(S, self.r_start)
-            out[self.m:][self.c_has] = np.maximum.reduceat(S[self.c_perm], self.c_start)
+            out[: self.m][self.r_has] = _reduce_max(S, self.r_perm, self.r_start)
+            out[self.m:][self.c_has] = _reduce_max(S, self.c_perm, self.c_start)
         return out
+
+    def row_max(self, S: np.ndarray) -> np.ndarray:
+        """The row maxima of the values ``S`` (0 for empty rows)."""
+        out = np.zeros(self.m)
+        if S.size:
+            out[self.r_has] = _reduce_max(S, self.r_perm, self.r_start)
+        return out
+
+
+def _groups(idx: np.ndarray, k: int):
+    """``(perm, starts, has)``: the stable permutation that sorts ``idx`` (None where it is
+    sorted already) and :func:`_starts` of the sorted indices."""
+    perm = None if idx.size < 2 or bool((idx[1:] >= idx[:-1]).all()) else np.argsort(
+        idx, kind="stable")
+    return (perm, *_starts(idx if perm is None else idx[perm], k))
+
+
+def _reduce_max(S: np.ndarray, perm, starts: np.ndarray) -> np.ndarray:
+    return np.maximum.reduceat(S if perm is None else S[perm], starts)
 
 
 def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -180,7 +247,7 @@ def _starts(sorted_idx: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.nonzero(first)[0], has
 
 
-def _ruiz_log_sparse(L, seg: _Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
+def _ruiz_log_sparse(L, seg: Segments, er, ec) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_ruiz_log` over the nonzeros of a sparse matrix."""
     return _ruiz_sweeps(lambda er, ec: seg.maxima(L + er[seg.rows] + ec[seg.cols]),
                         seg.m, er, ec)
@@ -374,6 +441,7 @@ def _curtis_reid_matrix(m: int, n: int, rows: np.ndarray, cols: np.ndarray) -> n
 #: Dense Curtis--Reid factorizations kept per thread (by pattern): Gauss--Newton on a small
 #: system equilibrates Jacobians of one or two patterns at every iterate.
 CR_DENSE_PATTERNS = 32
+_CR_DENSE = PatternCache(CR_DENSE_PATTERNS)
 
 
 def _curtis_reid_dense(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -381,27 +449,23 @@ def _curtis_reid_dense(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
     ``CR_DENSE_PATTERNS`` patterns of this thread (the matrix depends on the pattern only);
     solved by ``getrs`` this is ``gesv``, bit for bit. None if singular (never: the ridge).
     (scipy.linalg is imported here: it loads on first use, not with daekit.)"""
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    cache = _CR.__dict__.setdefault("dense", {})
-    hit = cache.get(key)
-    if hit is None:
+
+    def factor():
         from scipy.linalg.lapack import dgetrf
 
         lu, piv, info = dgetrf(_curtis_reid_matrix(m, n, rows, cols))
-        if info != 0:  # pragma: no cover - the ridge keeps K regular
-            return None
-        if len(cache) >= CR_DENSE_PATTERNS:
-            cache.pop(next(iter(cache)))
-        hit = cache[key] = (lu, piv)
-    return hit
+        return (lu, piv) if info == 0 else None  # (never singular: the ridge)
+
+    return _CR_DENSE.get(PatternCache.key(m, n, rows, cols), factor,
+                         keep=lambda hit: hit is not None)
 
 
-_CR = threading.local()  # factorizations of Curtis--Reid's normal equations, per pattern
 #: Patterns whose factorization is kept (per thread): Gauss--Newton re-equilibrates the
 #: Jacobian of one pattern at every iterate.
 CR_PATTERNS = 4
 #: ... each with at most this many nonzeros in its factors (about 24 MB)
 CR_KEEP_NNZ = 2_000_000
+_CR_LU = PatternCache(CR_PATTERNS)
 
 
 def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
@@ -410,21 +474,18 @@ def _curtis_reid_factor(m: int, n: int, rows: np.ndarray, cols: np.ndarray):
     for the last ``CR_PATTERNS`` patterns of this thread."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
     cols = np.ascontiguousarray(cols, dtype=np.int64)
-    key = (m, n, rows.tobytes(), cols.tobytes())
-    cache = _CR.__dict__.setdefault("lu", {})
-    lu = cache.get(key)
-    if lu is None:
+
+    def factor():
         k = rows.size
         P = sp.csr_matrix((np.ones(k), (rows, cols)), shape=(m, n))
         rc = np.bincount(rows, minlength=m).astype(float)
         cc = np.bincount(cols, minlength=n).astype(float)
         K = sp.bmat([[sp.diags(rc + 1e-10), P], [P.T, sp.diags(cc + 1e-10)]], format="csc")
-        lu = sp.linalg.splu(K, permc_spec="COLAMD")
-        if lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ:  # kept only while it is small in memory
-            if len(cache) >= CR_PATTERNS:
-                cache.pop(next(iter(cache)))
-            cache[key] = lu
-    return lu
+        return sp.linalg.splu(K, permc_spec="COLAMD")
+
+    # (kept only while it is small in memory)
+    return _CR_LU.get(PatternCache.key(m, n, rows, cols), factor,
+                      keep=lambda lu: lu.L.nnz + lu.U.nnz <= CR_KEEP_NNZ)
 
 
 def equilibrated(A):
@@ -718,6 +779,67 @@ def to_scipy(M) -> sp.csc_matrix:
     )
 
 
+def _bound(f: ca.Function, ins, outs):
+    """``f.buffer()`` with input ``i`` read from ``ins[i]`` and output ``j`` written into
+    ``outs[j]`` in place (contiguous float arrays of the nonzeros; None leaves one unbound:
+    CasADi reads an unbound input as zeros and does not compute an unbound output). The one
+    place where daekit binds CasADi's buffers: :func:`fast_call` and :class:`FastFunction`."""
+    buf, trigger = f.buffer()
+    for i, a in enumerate(ins):
+        if a is not None:
+            buf.set_arg(i, memoryview(a))
+    for i, a in enumerate(outs):
+        if a is not None:
+            buf.set_res(i, memoryview(a))
+    return buf, trigger
+
+
+def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple] | None = None,
+              want_stats: bool = False) -> dict:
+    """Call a CasADi Function once, writing straight into NumPy arrays (``Function.buffer``;
+    for repeated calls of one function :class:`FastFunction` keeps its buffers).
+
+    Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's column-major
+    ``(size, points)``; ``outs`` maps output names to such shapes (None: every output, as the
+    vector of its nonzeros). Inputs not given stay unbound (CasADi reads them as zeros) and
+    outputs not asked for are not computed (an integrator's adjoint outputs cost a third of a
+    short run). ``want_stats``: the Function's stats under ``"_stats"``.
+
+    >>> import casadi as ca, numpy as np
+    >>> x = ca.SX.sym("x", 2)
+    >>> F = ca.Function("f", [x], [2 * x], ["x"], ["y"])
+    >>> fast_call(F, {"x": np.array([1.0, 2.0])}, {"y": (2,)})["y"].tolist()
+    [2.0, 4.0]
+    """
+    ins: list = [None] * F.n_in()
+    for i, name in enumerate(F.name_in()):
+        a = args.get(name)
+        if a is None:
+            continue
+        a = np.ascontiguousarray(a, dtype=float).ravel()
+        if a.size != F.nnz_in(i):
+            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
+        ins[i] = a
+    res = {}
+    ros: list = [None] * F.n_out()
+    for i, name in enumerate(F.name_out()):
+        shape = (F.nnz_out(i),) if outs is None else outs.get(name)
+        if shape is None:
+            continue
+        r = np.zeros(shape)
+        if r.size != F.nnz_out(i):
+            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
+        ros[i] = res[name] = r
+    buf, ev = _bound(F, ins, ros)
+    ev()
+    if want_stats:
+        try:
+            res["_stats"] = buf.stats()
+        except Exception:  # noqa: BLE001
+            res["_stats"] = {}
+    return res
+
+
 class FastFunction:
     """A CasADi ``Function`` called through its raw buffers (``Function.buffer()``): the
     inputs are copied into NumPy arrays CasADi reads in place, and the outputs (their
@@ -746,14 +868,10 @@ class FastFunction:
     def _buffers(self):
         loc = self._local
         if not hasattr(loc, "trigger"):
-            buf, trigger = self.f.buffer()
             ins = [np.zeros(k) for k in self.sizes_in]
             outs = [np.zeros(k) for k in self.sizes_out]
-            for i, a in enumerate(ins):
-                buf.set_arg(i, memoryview(a))
-            for i, a in enumerate(outs):
-                buf.set_res(i, memoryview(a))
-            loc.buf, loc.trigger, loc.ins, loc.outs = buf, trigger, ins, outs
+            loc.buf, loc.trigger = _bound(self.f, ins, outs)
+            loc.ins, loc.outs = ins, outs
         return loc
 
     def __call__(self, *args) -> list[np.ndarray]:
@@ -765,6 +883,71 @@ class FastFunction:
 
     def __reduce__(self):  # the buffers are per process and thread: rebuilt from f
         return (FastFunction, (self.f,))
+
+
+class DenseFunction:
+    """A CasADi ``Function`` of dense inputs called through its raw buffers
+    (:class:`FastFunction`), its outputs as dense NumPy arrays: the values of ``f(*args)``
+    (as dense arrays) without SWIG's conversions to and from ``DM`` (measured on the
+    planar swing's end-point function: 95 against 10 us per call with the conversion of the
+    Jacobian). Inputs with ``k`` columns where the function takes one (the others repeated)
+    are evaluated by ``f.map(k)``, one mapped call, outputs side by side as CasADi's own
+    call gives them. One output: the array; several: a tuple.
+
+    >>> import casadi as ca
+    >>> x = ca.SX.sym("x", 2); a = ca.SX.sym("a")
+    >>> f = DenseFunction(ca.Function("f", [x, a], [a * x, ca.jacobian(a * ca.sumsqr(x), x)]))
+    >>> [v.tolist() for v in f([1.0, 2.0], 3.0)]
+    [[[3.0], [6.0]], [[6.0, 12.0]]]
+    >>> [v.tolist() for v in f(np.array([[1.0, 0.0], [2.0, 1.0]]), 1.0)]
+    [[[1.0, 0.0], [2.0, 1.0]], [[2.0, 4.0, 0.0, 2.0]]]
+    """
+
+    def __init__(self, f: ca.Function) -> None:
+        self.f = f
+        self.n_in = f.n_in()
+        self.cols_in = [f.size2_in(i) for i in range(self.n_in)]
+        self.sizes_in = [f.numel_in(i) for i in range(self.n_in)]
+        self._by_k: dict[int, tuple] = {}
+
+    def _mapped(self, k: int):
+        # a map of at least k columns (the extra columns repeat the first): the batched
+        # projections evaluate ever fewer columns as their starts converge, and a new map
+        # costs more to make (0.1-0.2 ms) than the few extra columns to evaluate
+        wider = [K for K in self._by_k if K >= k and (K == 1) == (k == 1)]
+        if wider:
+            return min(wider), self._by_k[min(wider)]
+        got = self._by_k.get(k)
+        if got is None:
+            g = self.f if k == 1 else self.f.map(k)
+            outs = []
+            for i in range(g.n_out()):
+                pat = g.sparsity_out(i)
+                r, c = (np.asarray(v, dtype=np.int64) for v in pat.get_triplet())
+                outs.append((pat.size1(), pat.size2(), r * pat.size2() + c))
+            got = self._by_k[k] = (FastFunction(g), outs)
+        return k, got
+
+    def __call__(self, *args):
+        vals = [np.asarray(v, dtype=float) for v in args]
+        k = 1
+        for v, c, n in zip(vals, self.cols_in, self.sizes_in, strict=True):
+            if v.size != n and v.ndim == 2 and v.shape[1] != c:
+                k = max(k, v.shape[1] // c)
+        K, (fast, outs) = self._mapped(k)
+        ins = []
+        for v, n in zip(vals, self.sizes_in, strict=True):
+            flat = v.ravel(order="F")
+            if flat.size == n:
+                ins.append(np.tile(flat, K) if K > 1 else flat)
+            else:
+                ins.append(np.concatenate([flat, np.tile(flat[: flat.size // k], K - k)]))
+        res = []
+        for nz, (m, ncol, at) in zip(fast(*ins), outs, strict=True):
+            d = np.zeros(m * ncol)
+            d[at] = nz
+            res.append(d.reshape(m, ncol)[:, : ncol // K * k])
+        return res[0] if len(res) == 1 else tuple(res)
 
 
 class SparseFunction:

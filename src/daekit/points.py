@@ -32,7 +32,6 @@ Example
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -42,7 +41,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import ModelError
-from .numerics import FastFunction, SparseFunction, equilibrate, major_index
+from .numerics import FastFunction, PatternCache, Segments, SparseFunction, equilibrate, major_index
 from .wording import count
 
 __all__ = ["TestPoint", "PointFunction", "PointStatus", "check_point", "make_consistent", "consistent_point",
@@ -656,19 +655,14 @@ def gauss_newton(fun, w0: np.ndarray, tol: float = POINT_TOL, max_iter: int = 60
 class _CscOps:
     """Row maxima and row sums over the nonzeros of CSC matrices of one pattern (the
     Jacobians of one Gauss--Newton run), without making SciPy matrices: the column of each
-    nonzero and the permutation to row order are found once. A matrix of another pattern
-    takes the general route."""
+    nonzero and the row segments (:class:`daekit.numerics.Segments`) are found once. A
+    matrix of another pattern takes the general route."""
 
     def __init__(self, J: sp.csc_matrix) -> None:
         self.shape = J.shape
         self.indptr, self.indices = J.indptr, J.indices
         self.cols = major_index(J.indptr)
-        self.perm = np.argsort(J.indices, kind="stable")  # nonzeros in row order
-        rows = J.indices[self.perm]
-        first = np.ones(rows.size, dtype=bool)
-        first[1:] = rows[1:] != rows[:-1]
-        self.starts = np.nonzero(first)[0]
-        self.has = rows[self.starts] if rows.size else rows
+        self.seg = Segments(J.shape[0], J.shape[1], J.indices, self.cols)
 
     def same(self, J) -> bool:
         return J.shape == self.shape and (J.indices is self.indices or (
@@ -685,10 +679,7 @@ class _CscOps:
             return _row_max(sp.csc_matrix((data, J.indices, J.indptr), shape=J.shape))
         a = np.abs(data)
         a[~np.isfinite(a)] = 0.0
-        out = np.zeros(self.shape[0])
-        if a.size:
-            out[self.has] = np.maximum.reduceat(a[self.perm], self.starts)
-        return out
+        return self.seg.row_max(a)
 
     def abs_dot(self, J, v: np.ndarray) -> np.ndarray:
         """``|J| @ v``."""
@@ -736,7 +727,7 @@ def _is_dense(n: int, m: int) -> bool:
     return n <= DENSE_UNKNOWNS and m <= 4 * DENSE_UNKNOWNS
 
 
-_KKT = threading.local()  # the last KKT pattern, per thread
+_KKT = PatternCache(1)  # the last KKT pattern, per thread
 
 
 def _kkt(J: sp.csc_matrix, mu: float) -> sp.csc_matrix:
@@ -744,9 +735,8 @@ def _kkt(J: sp.csc_matrix, mu: float) -> sp.csc_matrix:
     (the iterations of one Gauss--Newton run share it): each call only places the values."""
     J.sort_indices()
     m, n = J.shape
-    key = (m, n, J.nnz, J.indptr.tobytes(), J.indices.tobytes())
-    c = _KKT.__dict__
-    if c.get("key") != key:
+
+    def assemble():
         # markers: 1..nnz the entries of J, nnz+1..2 nnz those of J^T, -1 the identity,
         # -2 the -mu diagonal
         nnz = J.nnz
@@ -757,13 +747,31 @@ def _kkt(J: sp.csc_matrix, mu: float) -> sp.csc_matrix:
                     format="csc")
         K.sort_indices()
         mk = K.data.astype(np.int64)
-        c.update(key=key, K=K, src=np.where(mk > nnz, mk - nnz - 1, mk - 1),
-                 ident=mk == -1, reg=mk == -2, nnz=nnz)
+        return dict(K=K, src=np.where(mk > nnz, mk - nnz - 1, mk - 1), ident=mk == -1,
+                    reg=mk == -2, nnz=nnz)
+
+    c = _KKT.get(PatternCache.key(m, n, J.nnz, J.indptr, J.indices), assemble)
     vals = J.data[np.clip(c["src"], 0, max(c["nnz"] - 1, 0))] if c["nnz"] else np.zeros(
         c["src"].size)
     vals = np.where(c["ident"], 1.0, np.where(c["reg"], -mu, vals))
     K = c["K"]
     return sp.csc_matrix((vals, K.indices, K.indptr), shape=K.shape)
+
+
+_STEP_PATH = PatternCache(4)  # per pattern of J: whether the normal equations are sparse
+
+
+def _normal_fits(J: sp.csc_matrix) -> bool:
+    """Whether ``J J^T`` of the pattern of ``J`` has at most ``2 nnz(J) + m`` entries: those
+    of ``P P^T``, ``P`` the pattern with ones (no entries cancel), not formed where one
+    column of ``c`` entries alone puts a ``c``-by-``c`` block over the limit."""
+    m = J.shape[0]
+    limit = 2 * J.nnz + m
+    widest = int(np.diff(J.indptr).max(initial=0))
+    if widest * widest > limit:
+        return False
+    P = sp.csc_matrix((np.ones(J.nnz), J.indices, J.indptr), shape=J.shape)
+    return (P @ P.T).nnz <= limit
 
 
 def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
@@ -781,13 +789,11 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
     # the normal equations (J J^T + mu I) y = h, d = -J^T y, where J J^T stays about as sparse
     # as J (chains, meshes: a symmetric positive definite matrix a fifth of the KKT system's
     # size, factorized in a quarter of its time, 200-link chain); else (a column shared by
-    # many rows fills J J^T) the augmented system below
-    # (a column of c entries alone puts a dense c-by-c block into J J^T: where that block is
-    # over the limit, J J^T is not formed at all; one unknown in every row of a 20,000-row J
-    # would have made it 4e8 entries)
-    widest = int(np.diff(J.indptr).max(initial=0))
-    JJ = (J @ J.T).tocsc() if widest * widest <= 2 * J.nnz + m else None
-    if JJ is not None and JJ.nnz <= 2 * J.nnz + m:
+    # many rows fills J J^T) the augmented system below; decided once per pattern of J before
+    # J J^T is formed (:func:`_normal_fits`: one unknown in every row of a 20,000-row J would
+    # have made it 4e8 entries)
+    if _STEP_PATH.get(PatternCache.key(m, n, J.indptr, J.indices), lambda: _normal_fits(J)):
+        JJ = (J @ J.T).tocsc()
         band = _band_solver(JJ, mu)  # narrow band after reordering: banded Cholesky
         if band is not None:
             y = band(h)
@@ -820,7 +826,7 @@ def _min_norm_step(J, h: np.ndarray) -> np.ndarray | None:
 
 #: Widest band (after reverse Cuthill--McKee) of ``J J^T`` factorized as a band matrix.
 BAND_LIMIT = 24
-_BAND = threading.local()  # the last pattern's ordering, per thread
+_BAND = PatternCache(1)  # the last pattern's ordering, per thread
 
 
 def _band_solver(A: sp.csc_matrix, mu: float):
@@ -830,9 +836,8 @@ def _band_solver(A: sp.csc_matrix, mu: float):
     band is wider than ``BAND_LIMIT`` or the factorization fails (then SuperLU). A chain's
     ``J J^T`` (600 rows, band 9 at 200 links) factorizes in a quarter of SuperLU's time."""
     m = A.shape[0]
-    key = (m, A.indptr.tobytes(), A.indices.tobytes())
-    hit = _BAND.__dict__.get("last")
-    if hit is None or hit[0] != key:
+
+    def order():
         perm = sp.csgraph.reverse_cuthill_mckee(A.tocsr(), symmetric_mode=True)
         inv = np.empty(m, dtype=np.int64)
         inv[perm] = np.arange(m)
@@ -840,9 +845,10 @@ def _band_solver(A: sp.csc_matrix, mu: float):
         pc = inv[major_index(A.indptr)]
         low = pr >= pc
         width = int((pr - pc)[low].max(initial=0))
-        hit = (key, perm, width, (pr - pc)[low], pc[low], np.nonzero(low)[0])
-        _BAND.last = hit
-    _, perm, width, band_row, band_col, take = hit
+        return perm, width, (pr - pc)[low], pc[low], np.nonzero(low)[0]
+
+    hit = _BAND.get(PatternCache.key(m, A.indptr, A.indices), order)
+    perm, width, band_row, band_col, take = hit
     if width > BAND_LIMIT:
         return None
     from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded

@@ -33,7 +33,6 @@ import numpy as np
 
 from .consistency import (
     BoundaryAnalysis,
-    DenseFunction,
     analyze_boundary,
     as_array,
     conflicting_conditions,
@@ -64,23 +63,24 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
     v0, vT = end_points(g)
     labels = prob.bc_labels
     nman = int(prob.man_fun.size1_out(0))
-    # the end-point functions evaluated through their buffers (dozens of small calls here)
-    fx = _Fast(prob)
+    # the end-point functions evaluated through their buffers (dozens of small calls here),
+    # made once per compiled problem
+    ends, bc_jac, man_jac = (prob.dense(k) for k in ("ends_fun", "bc_jac", "man_jac"))
     if not labels:
-        J0 = fx.man_jac(0.0, v0, p)
-        JT = fx.man_jac(T, vT, p)
+        J0 = man_jac(0.0, v0, p)
+        JT = man_jac(T, vT, p)
         return BoundaryAnalysis([], 0, [], [], np.zeros(0), np.zeros((0, 0)),
                                 (J0.shape[1] - a.nz - a.nw, JT.shape[1] - a.nz - a.nw))
     if "periodic" in prob.bc_kinds:
         # a non-periodic guess would put point a far from the periodic solutions' set
         vT = v0.copy()
     n = v0.size
-    a0, aT, res_a = project_ends(fx.ends, v0, vT, p, T)
+    a0, aT, res_a = project_ends(ends, v0, vT, p, T)
     rng = np.random.default_rng(7)
     # the neighbourhood: points of the manifold near a (where the conditions need not hold);
     # periodic conditions are redundant only where x(T) = x(0), so for them the points
     # are taken on the set where all the conditions hold (their rank is constant there)
-    man = fx.ends
+    man = ends
     y = np.concatenate([a0, aT])
     sc = np.maximum(1.0, np.abs(y))
     yps = [y + 0.05 * sc * rng.standard_normal(y.size) for _ in range(2)]
@@ -88,7 +88,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
                project_ends_many(columns(man), [(yp[:n], yp[n:]) for yp in yps], p, T)]
 
     def jacs(e0, eT):
-        return fx.bc_jac(e0, eT, p, T), fx.man_jac(0.0, e0, p), fx.man_jac(T, eT, p)
+        return bc_jac(e0, eT, p, T), man_jac(0.0, e0, p), man_jac(T, eT, p)
 
     at_a = jacs(a0, aT)
     at_b = [jacs(*e) for e in generic]
@@ -127,7 +127,7 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
         for amp in (0.03, 0.3):
             yp = yp0 + amp * np.maximum(1.0, np.abs(yp0)) * rng.standard_normal(yp0.size)
             starts.append((yp[:n], yp[n:]))
-        _find_conflict(prob, fx, ba, [*starts, (v0, vT)], p, T, nman)
+        _find_conflict(prob, ba, [*starts, (v0, vT)], p, T, nman)
         if not ba.conflict:
             ba.notes.append(
                 "the conditions could not all be met together with the invariants near the "
@@ -135,34 +135,24 @@ def analyze(prob, g, forced=()) -> BoundaryAnalysis:
             )
     _bound_conflicts(prob, ba)
     if not ba.proven and "periodic" not in prob.bc_kinds:
-        _pin_isolated_ends(prob, fx, ba, (a0, aT), at_a, at_b, p, T, nman, rng)
+        _pin_isolated_ends(prob, ba, (a0, aT), at_a, at_b, p, T, nman, rng)
         if ba.pins:
             ba.degenerate = True
     if ba.dropped and not ba.proven:
-        _branch_selectors(prob, fx, ba, (a0, aT), (v0, vT), p, T, nman, scale, rng)
+        _branch_selectors(prob, ba, (a0, aT), (v0, vT), p, T, nman, scale, rng)
     return ba
 
 
-class _Fast:
-    """The problem's end-point functions as :class:`~daekit.ocp.consistency.DenseFunction`
-    (dense NumPy outputs; the same values as CasADi's own call)."""
-
-    def __init__(self, prob) -> None:
-        self.ends = DenseFunction(prob.ends_fun)
-        self.bc = DenseFunction(prob.bc_fun)
-        self.bc_jac = DenseFunction(prob.bc_jac)
-        self.man_jac = DenseFunction(prob.man_jac)
-
-
-def _find_conflict(prob, fx, ba: BoundaryAnalysis, starts, p, T, nman: int) -> None:
+def _find_conflict(prob, ba: BoundaryAnalysis, starts, p, T, nman: int) -> None:
     """A minimal subset of conditions that cannot hold together (deletion filter, trying to
     remove the conditions with the smallest residual at the least-squares point first); proven
     when its conditions are affine and contradict each other without the manifold."""
     a0, aT = starts[0]
     n_fixed = 2 * nman
-    r = fx.ends(a0, aT, p, T)[0].ravel()[n_fixed:]
+    ends = prob.dense("ends_fun")
+    r = ends(a0, aT, p, T)[0].ravel()[n_fixed:]
     order = sorted(range(r.size), key=lambda i: (abs(r[i]), -i))
-    found = conflicting_conditions(fx.ends, n_fixed, r.size, starts, p, T, order)
+    found = conflicting_conditions(ends, n_fixed, r.size, starts, p, T, order)
     if found is None:
         return
     subset, alone = found
@@ -173,7 +163,7 @@ def _find_conflict(prob, fx, ba: BoundaryAnalysis, starts, p, T, nman: int) -> N
         ba.kept, ba.dropped = list(range(r.size)), []
 
 
-def _pin_isolated_ends(prob, fx, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
+def _pin_isolated_ends(prob, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
     """At an end whose conditions are degenerate at ``a`` but determine one isolated point of
     the manifold (the pole upright at rest: ``p[1] = L`` touches the circle there), impose that
     point instead: the values of an independent subset of the states at it (regular, the same
@@ -197,7 +187,7 @@ def _pin_isolated_ends(prob, fx, ba, a_pt, at_a, at_b, p, T, nman, rng) -> None:
         if dim <= 0 or sv.size < dim or sv[dim - 1] > 1e-4:
             continue  # the end's conditions do not fix the point, or fix it regularly
         rows = list(range(e * nman, (e + 1) * nman)) + [2 * nman + i for i in idx]
-        sub = rows_of(fx.ends, rows)
+        sub = rows_of(prob.dense("ends_fun"), rows)
         y = np.concatenate(a_pt)
         isolated = True
         for _ in range(3):
@@ -276,7 +266,7 @@ def columns(fun, rows=None):
     return sub
 
 
-def _branch_selectors(prob, fx, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
+def _branch_selectors(prob, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> None:
     """Dropped conditions that select a branch of the set where the kept ones hold become
     inequalities ``|c| <= gap / 2`` (see the module docstring)."""
     n = a_pt[0].size
@@ -285,7 +275,7 @@ def _branch_selectors(prob, fx, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> N
     pin_rows = [(0 if k == "initial" else n) + i for k, i, _, _ in ba.pins]
     pin_vals = np.array([v for _, _, v, _ in ba.pins]).reshape(-1, 1)
 
-    sub0 = columns(fx.ends, rows)
+    sub0 = columns(prob.dense("ends_fun"), rows)
 
     def sub(V0, VT, p_, T_):  # all starts at once (columns): one mapped evaluation
         k = V0.shape[1]
@@ -305,7 +295,7 @@ def _branch_selectors(prob, fx, ba, a_pt, guess_pt, p, T, nman, scale, rng) -> N
     others = []
     for e0, eT, res in project_ends_many(sub, starts, p, T, max_iter=30):
         if res < 1e-9:
-            others.append(fx.bc(e0, eT, p, T).ravel())
+            others.append(prob.dense("bc_fun")(e0, eT, p, T).ravel())
     if not others:
         return
     R = np.abs(np.array(others))

@@ -24,6 +24,7 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
+from ..numerics import DenseFunction
 from .problem import Augmented
 
 __all__ = ["Problem", "compile_problem", "Condition"]
@@ -110,6 +111,25 @@ class Problem:
             a = self.aug
             f = ca.Function("inv", [a.t, a.x, a.z, a.w, a.p], [a.inv])
             self.__dict__["_inv_fun"] = f
+        return f
+
+    def dense(self, name: str) -> DenseFunction:
+        """The function field ``name`` (``"ends_fun"``, ``"bc_fun"``, ``"bc_jac"``,
+        ``"man_jac"``, ...) as a :class:`~daekit.numerics.DenseFunction` (NumPy in and out
+        through its buffers), made once per compiled problem: the boundary analysis, its
+        re-solve and the guess's projections share them.
+
+        >>> import daekit as dk
+        >>> m = dk.Model("cart"); s = m.state("s"); u = m.control("u")
+        >>> _ = m.equation(m.der(s, 2) - u, name="newton")
+        >>> prob = dk.OCP(m, t_final=1.0).minimize(integral=u**2).final({"s": 1}).compile()
+        >>> prob.dense("bc_fun") is prob.dense("bc_fun")
+        True
+        """
+        made = self.__dict__.setdefault("_dense", {})
+        f = made.get(name)
+        if f is None:
+            f = made[name] = DenseFunction(getattr(self, name))
         return f
 
     def simple_bounds(self):

@@ -65,76 +65,9 @@ def as_array(M) -> np.ndarray:
     out[r, c] = M.nonzeros()
     return out
 
-__all__ = ["as_array", "DenseFunction", "BoundaryAnalysis", "independent_rows",
+__all__ = ["as_array", "BoundaryAnalysis", "independent_rows",
            "analyze_boundary", "null_basis", "project_ends", "project_ends_many",
            "restricted_jacobian", "conflicting_conditions", "equilibrate"]
-
-
-class DenseFunction:
-    """A CasADi ``Function`` of dense inputs called through its raw buffers
-    (:class:`daekit.numerics.FastFunction`), its outputs as dense NumPy arrays: the same values
-    as ``as_array(f(*args))`` without SWIG's conversions to and from ``DM`` (measured on the
-    planar swing's end-point function: 95 against 10 us per call with the conversion of the
-    Jacobian). Inputs with ``k`` columns where the function takes one (the others repeated)
-    are evaluated by ``f.map(k)``, one mapped call, outputs side by side as CasADi's own
-    call gives them. One output: the array; several: a tuple.
-
-    >>> import casadi as ca
-    >>> x = ca.SX.sym("x", 2); a = ca.SX.sym("a")
-    >>> f = DenseFunction(ca.Function("f", [x, a], [a * x, ca.jacobian(a * ca.sumsqr(x), x)]))
-    >>> [v.tolist() for v in f([1.0, 2.0], 3.0)]
-    [[[3.0], [6.0]], [[6.0, 12.0]]]
-    >>> [v.tolist() for v in f(np.array([[1.0, 0.0], [2.0, 1.0]]), 1.0)]
-    [[[1.0, 0.0], [2.0, 1.0]], [[2.0, 4.0, 0.0, 2.0]]]
-    """
-
-    def __init__(self, f) -> None:
-        self.f = f
-        self.n_in = f.n_in()
-        self.cols_in = [f.size2_in(i) for i in range(self.n_in)]
-        self.sizes_in = [f.numel_in(i) for i in range(self.n_in)]
-        self._by_k: dict[int, tuple] = {}
-
-    def _mapped(self, k: int):
-        # a map of at least k columns (the extra columns repeat the first): the batched
-        # projections evaluate ever fewer columns as their starts converge, and a new map
-        # costs more to make (0.1-0.2 ms) than the few extra columns to evaluate
-        wider = [K for K in self._by_k if K >= k and (K == 1) == (k == 1)]
-        if wider:
-            return min(wider), self._by_k[min(wider)]
-        got = self._by_k.get(k)
-        if got is None:
-            from ..numerics import FastFunction
-
-            g = self.f if k == 1 else self.f.map(k)
-            outs = []
-            for i in range(g.n_out()):
-                sp = g.sparsity_out(i)
-                r, c = (np.asarray(v, dtype=np.int64) for v in sp.get_triplet())
-                outs.append((sp.size1(), sp.size2(), r * sp.size2() + c))
-            got = self._by_k[k] = (FastFunction(g), outs)
-        return k, got
-
-    def __call__(self, *args):
-        vals = [np.asarray(v, dtype=float) for v in args]
-        k = 1
-        for v, c, n in zip(vals, self.cols_in, self.sizes_in, strict=True):
-            if v.size != n and v.ndim == 2 and v.shape[1] != c:
-                k = max(k, v.shape[1] // c)
-        K, (fast, outs) = self._mapped(k)
-        ins = []
-        for v, n in zip(vals, self.sizes_in, strict=True):
-            flat = v.ravel(order="F")
-            if flat.size == n:
-                ins.append(np.tile(flat, K) if K > 1 else flat)
-            else:
-                ins.append(np.concatenate([flat, np.tile(flat[: flat.size // k], K - k)]))
-        res = []
-        for nz, (m, ncol, at) in zip(fast(*ins), outs, strict=True):
-            d = np.zeros(m * ncol)
-            d[at] = nz
-            res.append(d.reshape(m, ncol)[:, : ncol // K * k])
-        return res[0] if len(res) == 1 else tuple(res)
 
 
 @dataclass

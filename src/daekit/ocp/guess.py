@@ -585,7 +585,7 @@ def consistent_end(prob, x, z, w, p, T):
     >>> ok, np.round(xe, 12).tolist(), np.round(ze, 12).tolist()   # lam = -m g / (2 L)
     (True, [0.0, 0.0, 0.0, 0.5, 0.0, 0.0], [-2.943])
     """
-    from .consistency import DenseFunction, project_ends, rows_of
+    from .consistency import project_ends, rows_of
 
     a = prob.aug
     x, z = _given_final_values(prob, x, z)
@@ -596,7 +596,7 @@ def consistent_end(prob, x, z, w, p, T):
                                           if k == "final"]
     if not rows:
         return x, z, False
-    sub = rows_of(DenseFunction(prob.ends_fun), rows)
+    sub = rows_of(prob.dense("ends_fun"), rows)
 
     def fun(v0, vT, p_, T_):  # only the final point moves; w is held at its value
         r, J = sub(v0, vT, p_, T_)
@@ -619,7 +619,7 @@ def _start_by_projection(prob, w0, p, vg, lb, ub):
     within the bounds ``lb, ub`` (then the least-squares problem decides). A few
     evaluations of the compiled end-point function (its rows at ``t = 0``) instead of
     building and running an IPOPT problem."""
-    from .consistency import DenseFunction, project_ends, rows_of
+    from .consistency import project_ends, rows_of
 
     a = prob.aug
     nman = int(prob.man_fun.size1_out(0))
@@ -630,7 +630,7 @@ def _start_by_projection(prob, w0, p, vg, lb, ub):
     n = vg.size
     s = np.ones(n)
     s[a.nx:] = 100.0
-    sub = rows_of(DenseFunction(prob.ends_fun), rows)
+    sub = rows_of(prob.dense("ends_fun"), rows)
     w0 = np.asarray(w0, float)
 
     def fun(u, _vT, _p, _T):

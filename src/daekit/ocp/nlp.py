@@ -10,6 +10,7 @@ import casadi as ca
 import numpy as np
 
 from .._cio import c_output
+from ..numerics import fast_call
 
 __all__ = ["NLPBuilder", "RowGroup", "quiet", "call_buffered"]
 
@@ -91,21 +92,16 @@ def call_buffered(solver: ca.Function, **given) -> tuple[dict, dict]:
     >>> np.round(res["x"], 8).tolist(), round(res["f"], 8), stats["success"]
     ([0.0, 0.0], 2.0, True)
     """
-    buf, trigger = solver.buffer()
-    keep = []
+    args = {}
     for i in range(solver.n_in()):
         v = np.zeros(solver.nnz_in(i))
         name = solver.name_in(i)
         v[:] = np.ravel(given[name]) if name in given else solver.default_in(i)
-        keep.append(v)
-        buf.set_arg(i, memoryview(v))
-    outs = [np.zeros(solver.nnz_out(i)) for i in range(solver.n_out())]
-    for i, o in enumerate(outs):
-        buf.set_res(i, memoryview(o))
-    trigger()
-    res = {solver.name_out(i): o for i, o in enumerate(outs)}
+        args[name] = v
+    res = fast_call(solver, args, want_stats=True)
+    stats = res.pop("_stats")
     res["f"] = float(res["f"][0])
-    return res, dict(buf.stats())
+    return res, dict(stats)
 
 
 @contextlib.contextmanager

@@ -7,7 +7,8 @@ import casadi as ca
 import numpy as np
 
 from ..errors import OCPError
-from .consistency import BoundaryAnalysis, DenseFunction
+from ..numerics import DenseFunction
+from .consistency import BoundaryAnalysis
 from .nlp import quiet
 
 __all__ = ["OCPSolution", "build_solution"]

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from .consistency import DenseFunction
+from ..numerics import DenseFunction
 from .nlp import NLPBuilder
 
 __all__ = ["Transcription", "params_and_time", "finish"]

@@ -41,11 +41,11 @@ import scipy.sparse as sp
 
 from .._cio import c_output, failure_time
 from ..inputs import InputError, InputSignal, signal_for
-from ..numerics import FastFunction
+from ..numerics import FastFunction, fast_call
 from .trajectory import LazyColumns, Trajectory
-from .vectorized import evaluate_columns, evaluate_rows, fast_call, rows_equal
+from .vectorized import evaluate_columns, evaluate_rows, rows_equal
 
-__all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "fast_call", "reason",
+__all__ = ["System", "system_for", "signal_for", "Evaluator", "IntegrationFailure", "reason",
            "make_trajectory", "reraise_input_error", "to_scipy", "stats_of", "evaluator_of",
            "StateColumns", "check_sized_options", "SIZED_OPTIONS"]
 

@@ -23,59 +23,14 @@ True
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import casadi as ca
 import numpy as np
+
+from ..numerics import fast_call  # (re-exported: the projection imports it from here)
 
 __all__ = ["RowEvaluator", "evaluate_rows", "evaluate_columns", "fast_call", "rows_equal",
            "spd_inverse"]
 
-
-def fast_call(F: ca.Function, args: Mapping[str, np.ndarray], outs: Mapping[str, tuple],
-              want_stats: bool = False) -> dict:
-    """Call a CasADi Function writing straight into NumPy arrays (``Function.buffer``).
-
-    Inputs and outputs are row-major ``(points, size)`` arrays, i.e. CasADi's column-major
-    ``(size, points)``; ``outs`` maps output names to such shapes.
-
-    >>> import casadi as ca, numpy as np
-    >>> x = ca.SX.sym("x", 2)
-    >>> F = ca.Function("f", [x], [2 * x], ["x"], ["y"])
-    >>> fast_call(F, {"x": np.array([1.0, 2.0])}, {"y": (2,)})["y"].tolist()
-    [2.0, 4.0]
-    """
-    buf, ev = F.buffer()
-    keep = []
-    # inputs not given stay unbound (CasADi reads a null input as zeros) and outputs not asked
-    # for unbound (not computed: an integrator's adjoint outputs cost a third of a short run)
-    for i, name in enumerate(F.name_in()):
-        a = args.get(name)
-        if a is None:
-            continue
-        a = np.ascontiguousarray(a, dtype=float).ravel()
-        if a.size != F.nnz_in(i):
-            raise ValueError(f"{F.name()}: input {name} has {a.size} values, needs {F.nnz_in(i)}")
-        keep.append(a)
-        buf.set_arg(i, memoryview(a))
-    res = {}
-    for i, name in enumerate(F.name_out()):
-        shape = outs.get(name)
-        if shape is None:
-            continue
-        r = np.zeros(shape)
-        if r.size != F.nnz_out(i):
-            raise ValueError(f"{F.name()}: output {name} has {F.nnz_out(i)} values")
-        keep.append(r)
-        buf.set_res(i, memoryview(r))
-        res[name] = r
-    ev()
-    if want_stats:
-        try:
-            res["_stats"] = buf.stats()
-        except Exception:  # noqa: BLE001
-            res["_stats"] = {}
-    return res
 
 _UNARY = {
     "OP_ASSIGN": "{0}", "OP_NEG": "-{0}", "OP_EXP": "np.exp({0})", "OP_LOG": "np.log({0})",

@@ -28,9 +28,13 @@ fixed values and consistency conditions.
 Everything that depends only on the system (the vector of every named value as an expression,
 the name-to-row map, the CasADi functions of ``[alg; invariants]`` and of the values, their
 sparse Jacobians, the Hessian of the invariants) is made once and kept on the system, and so
-are the functions of the rows a call's fixed values and guesses use, per set of names (a sweep
-fixes the same names in every sample: its later calls build nothing); the parameters are inputs
-of those functions, not baked in. The CasADi functions are called through their raw buffers
+is what a call's *names* decide, per set of fixed and guessed names (:class:`_Plan`: their rows,
+index arrays, the functions of the rows that are expressions, which fixed values name one
+quantity twice, where the values go in ``w``, which curvature terms the steps need): a sweep, an
+ensemble or a loop fixes the same names in every sample, and its later calls only check their
+values and do the numerics (the checks that depend on values, such as two names of one
+quantity given different values, are made on every call). The parameters are inputs of those
+functions, not baked in. The CasADi functions are called through their raw buffers
 (:class:`daekit.numerics.FastFunction`). The rank analysis of the result (free, redundant and
 determined values) is made on first access to those fields of :class:`InitialValues`.
 

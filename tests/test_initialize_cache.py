@@ -94,3 +94,78 @@ def test_deferred_analysis_in_copies_and_pickles(r):
     assert want[0] == ["p[2]", "der(p)[2]"] and want[2] == 4
     # v = der(p) is fixed under its other name: determined, and no sign ambiguity noted
     assert want[4] == ["v[0]", "v[1]", "v[2]"] and want[5] == []
+
+
+# ----------------------------------------------------------------------------------------------
+# the plan of a call's names (made once per system and set of fixed and guessed names)
+CASES = [
+    ({"p": [0.6, 0.0, -0.8], "der(p)": [0.0, 1.0, 0.0]}, None),  # every state: no step
+    ({"der(p)": [0.0, 1.0, 0.0], "p": [0.6, 0.0, -0.8]}, None),  # the same, other order
+    ({"p[0]": 0.6, "p[1]": 0.0}, {"p[2]": -1.0, "der(p)": [0.0, 1.0, 0.1]}),  # Newton steps
+    ({"p": [0.6, 0.0, -0.8], "v[1]": 1.0, "der(p)[1]": 1.0}, None),  # one quantity, two names
+    (None, {"p": [0.5, 0.1, -0.9]}),
+]
+
+
+@pytest.mark.parametrize("fixed,guess", CASES)
+def test_a_kept_plan_gives_what_a_new_one_gives(r, fixed, guess):
+    """A later call with the same names takes the plan the first made (with other values: a
+    rod of length 2, the positions doubled); a copy of the system (no caches) makes
+    everything anew: the same values to the last bit, and both meet the exact conditions."""
+
+    def doubled(d):
+        return None if d is None else {k: 2 * np.asarray(v) if k.startswith("p") else v
+                                       for k, v in d.items()}
+
+    first = dk.initialize(r, fixed=doubled(fixed), guess=doubled(guess), params={"L": 2.0})
+    assert abs(first["p"] @ first["p"] - 4.0) <= 1e-12  # (makes the plan)
+    warm = dk.initialize(r, fixed=fixed, guess=guess)
+    cold = dk.initialize(copy.copy(r), fixed=fixed, guess=guess)
+    np.testing.assert_array_equal(warm.x0, cold.x0)
+    np.testing.assert_array_equal(warm.z0, cold.z0)
+    assert warm.values == cold.values
+    assert (warm.fixed, warm.redundant, warm.free, warm.dof, warm.iterations) == \
+        (cold.fixed, cold.redundant, cold.free, cold.dof, cold.iterations)
+    p, v = warm["p"], warm["v"]
+    assert abs(p @ p - 1.0) <= 1e-12 and abs(p @ v) <= 1e-12
+    assert warm.z0[0] == pytest.approx(exact_z(1.0, p, v), rel=1e-10)
+    for k, val in (fixed or {}).items():  # fixed values held exactly
+        np.testing.assert_array_equal(warm[k], val)
+
+
+def test_other_names_other_plan(r):
+    """Alternating sets of names on one system: each call is right for its own names (the
+    fixed order is the call's, also for the same names in another order: with v fixed first,
+    p . v = 0 implies p[1])."""
+    a = {"p": [0.6, 0.0, -0.8], "der(p)": [0.0, 1.0, 0.0]}
+    b = {"der(p)": [0.0, 1.0, 0.0], "p": [0.6, 0.0, -0.8]}
+    for _ in range(2):
+        ia = dk.initialize(r, fixed=a)
+        ib = dk.initialize(r, fixed=b)
+        ic = dk.initialize(r, fixed={"p[0]": 0.8, "p[1]": 0.0}, guess={"p[2]": 0.5})
+        assert ia.fixed[:3] == ["p[0]", "p[1]", "p[2]"]
+        assert ib.fixed[:3] == ["der(p)[0]", "der(p)[1]", "der(p)[2]"]
+        assert ia.redundant == ["p[2]", "der(p)[2]"] and ib.redundant == ["p[1]", "p[2]"]
+        np.testing.assert_array_equal(ia.x0, ib.x0)
+        np.testing.assert_allclose(ic["p"], [0.8, 0.0, 0.6], rtol=0, atol=1e-12)
+
+
+def test_a_kept_plan_still_finds_contradictions(r):
+    """Names seen before, values that contradict the rod or each other: the same errors,
+    naming the culprits, as on a first call."""
+    fixed = {"p": [0.6, 0.0, -0.8], "der(p)": [0.0, 1.0, 0.0]}
+    dk.initialize(r, fixed=fixed)
+    with pytest.raises(dk.InitializationError, match=r"p\[0\] = 1.*\['rod'\]"):
+        dk.initialize(r, fixed={"p": [1.0, 0.0, -0.8], "der(p)": [0.0, 1.0, 0.0]})
+    two = {"p": [0.6, 0.0, -0.8], "v[1]": 1.0, "der(p)[1]": 1.0}
+    dk.initialize(r, fixed=two)
+    with pytest.raises(dk.InitializationError,
+                       match=r"v\[1\] = 1 and der\(p\)\[1\] = 2 contradict each other"):
+        dk.initialize(r, fixed={**two, "der(p)[1]": 2.0})
+    with pytest.raises(dk.InitializationError, match=r"'p' has 3 elements .* 2 values"):
+        dk.initialize(r, fixed={"p": [0.6, 0.0], "der(p)": [0.0, 1.0, 0.0]})
+    with pytest.raises(dk.InitializationError, match=r"value of 'der\(p\)' is not finite"):
+        dk.initialize(r, fixed={"p": [0.6, 0.0, -0.8], "der(p)": [0.0, np.nan, 0.0]})
+    # and the plan is still right afterwards
+    ok = dk.initialize(r, fixed=fixed)
+    np.testing.assert_array_equal(ok["p"], fixed["p"])

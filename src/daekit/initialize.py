@@ -28,9 +28,13 @@ fixed values and consistency conditions.
 Everything that depends only on the system (the vector of every named value as an expression,
 the name-to-row map, the CasADi functions of ``[alg; invariants]`` and of the values, their
 sparse Jacobians, the Hessian of the invariants) is made once and kept on the system, and so
-are the functions of the rows a call's fixed values and guesses use, per set of names (a sweep
-fixes the same names in every sample: its later calls build nothing); the parameters are inputs
-of those functions, not baked in. The CasADi functions are called through their raw buffers
+is what a call's *names* decide, per set of fixed and guessed names (:class:`_Plan`: their rows,
+index arrays, the functions of the rows that are expressions, which fixed values name one
+quantity twice, where the values go in ``w``, which curvature terms the steps need): a sweep, an
+ensemble or a loop fixes the same names in every sample, and its later calls only check their
+values and do the numerics (the checks that depend on values, such as two names of one
+quantity given different values, are made on every call). The parameters are inputs of those
+functions, not baked in. The CasADi functions are called through their raw buffers
 (:class:`daekit.numerics.FastFunction`). The rank analysis of the result (free, redundant and
 determined values) is made on first access to those fields of :class:`InitialValues`.
 
@@ -58,6 +62,7 @@ choice of the same size on both (they may pick different, equally valid, sets).
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from collections import Counter
 from collections.abc import Mapping
@@ -242,22 +247,29 @@ def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = No
 def _with_values(elems: list[str], key: str, val, what: str, row_of
                  ) -> list[tuple[str, int, float]]:
     """The values ``val`` given for ``key`` (elements ``elems``), checked."""
+    arr = _checked_values(len(elems), elems, key, val, what)
+    return [(e, row_of[e], float(v)) for e, v in zip(elems, arr.tolist(), strict=True)]
+
+
+def _checked_values(size: int, elems: list[str], key: str, val, what: str) -> np.ndarray:
+    """The ``size`` values ``val`` given for ``key`` (elements ``elems``) as floats: one
+    number for all of them or one per element, finite; else InitializationError."""
     try:
-        arr = np.atleast_1d(np.asarray(val, dtype=float)).ravel()
+        arr = np.asarray(val, dtype=float).ravel()
     except (TypeError, ValueError):
         raise InitializationError(
             f"{what}: the value of {key!r} must be a number or a list of numbers, got {val!r}"
         ) from None
-    if arr.size == 1 and len(elems) > 1:
-        arr = np.repeat(arr, len(elems))
-    if arr.size != len(elems):
+    if arr.size == 1 and size > 1:
+        arr = np.repeat(arr, size)
+    if arr.size != size:
         raise InitializationError(
-            f"{what}: {key!r} has {count(len(elems), 'element')} ({', '.join(elems)}) but "
+            f"{what}: {key!r} has {count(size, 'element')} ({', '.join(elems)}) but "
             f"{count(arr.size, 'value')} {'was' if arr.size == 1 else 'were'} given"
         )
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise InitializationError(f"{what}: the value of {key!r} is not finite: {val!r}")
-    return [(e, row_of[e], float(v)) for e, v in zip(elems, arr.tolist(), strict=True)]
+    return arr
 
 
 class _SystemCache:
@@ -268,7 +280,7 @@ class _SystemCache:
     position in ``w`` of every row of ``V`` that is a plain symbol."""
 
     def __init__(self, r) -> None:
-        nx = r.nx
+        self.nx, self.nz = nx, _ = r.nx, r.nz
         self._refs = (r.x, r.z, r.alg, r.invariants, r.variables, r.u, r.t)  # ids stay unique
         names = list(r.variables)
         exprs = list(r.variables.values())
@@ -313,6 +325,7 @@ class _SystemCache:
         self.hess: dict = {}
         self.zdep = None
         self.names_of: dict = {}  # a fixed/guessed key -> its elements and rows
+        self.plans: dict[tuple, _Plan] = {}  # (fixed keys, guess keys) -> what they decide
 
     def core_nonzeros(self, parts: list[np.ndarray]) -> np.ndarray:
         """The nonzeros of ``[J_alg; J_inv]`` (CCS order of ``core_ccs``) from those of the
@@ -418,6 +431,159 @@ def _system_cache(r) -> _SystemCache:
     return r.derived("initialize", _SystemCache)
 
 
+#: Plans (:class:`_Plan`) kept per system: the sets of fixed and guessed names of its most
+#: recent calls.
+_PLANS_PER_SYSTEM = 64
+
+
+class _Plan:
+    """What an :func:`initialize` call's *names* decide, made once per system and set of
+    fixed and guessed names (``fixed`` and ``guess`` keys, in order) and kept on the system
+    (:attr:`_SystemCache.plans`): a sweep, an ensemble or a user's loop fixes the same names
+    in every call, and its later calls only check and place their values. Nothing here
+    depends on the values, the parameters, ``t0`` or the inputs.
+
+    Holds: each key's elements; the rows of ``V`` of the fixed values and guesses; the pairs
+    of fixed values that are one quantity under two names (``der(p)`` and ``v``: their
+    values must agree, checked per call); the row names of the messages; the maps of the
+    used rows (unit rows for plain symbols of ``w``, the CasADi function of the rows that are
+    expressions); the positions in ``w`` the values start and pin; which curvature terms the
+    Newton steps need; the ``z`` solver.
+    """
+
+    def __init__(self, r, sc: _SystemCache, fixed_items: list, guess_items: list,
+                 fixed_keys: list, guess_keys: list) -> None:
+        nx, nz = r.nx, r.nz
+        n = nx + nz
+        self.fixed_keys, self.guess_keys = fixed_keys, guess_keys
+        self.fixed_names = [f[0] for f in fixed_items]
+        self.guess_names = [g[0] for g in guess_items]
+        self.fix_idx = fix_idx = np.array([f[1] for f in fixed_items], dtype=np.int64)
+        self.g_idx = g_idx = np.array([g[1] for g in guess_items], dtype=np.int64)
+        sc.describe(np.concatenate([fix_idx, g_idx]))
+        # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols
+        # are compared by their hash (made once per system), other expressions pairwise
+        seen: dict[int, int] = {}
+        others: list[tuple[int, ca.SX]] = []
+        later, earlier = [], []
+        for i, ri in enumerate(fix_idx.tolist()):
+            hsh = int(sc.sym_hash[ri])
+            if hsh != -1:
+                j = seen.setdefault(hsh, i)
+                pairs = [j] if j != i else []
+            else:
+                e = sc.elems[ri]
+                pairs = [j for j, ej in others if ca.is_equal(e, ej, 2)]
+                others.append((i, e))
+            later += [i] * len(pairs)
+            earlier += pairs
+        self.same_later = np.array(later, dtype=np.int64)
+        self.same_earlier = np.array(earlier, dtype=np.int64)
+
+        self.n_alg = n_alg = int(sc.alg.numel())
+        self.n_inv = int(sc.inv.numel())
+        alg_names = r.alg_names
+        if not alg_names or len(alg_names) != n_alg:
+            alg_names = [f"alg[{i}]" for i in range(n_alg)]
+        self.row_names = list(alg_names) + list(r.invariant_names) + self.fixed_names
+        self.use_sparse = use_sparse = n >= _SPARSE_MIN_UNKNOWNS
+
+        # the rows of V the fixed values and guesses use, and their Jacobian: unit rows for
+        # plain symbols of w, zero rows for other symbols (inputs, parameters), a sparse
+        # CasADi Jacobian only for the rows that are expressions
+        used, inv_used = (np.unique(np.concatenate([fix_idx, g_idx]), return_inverse=True)
+                          if fix_idx.size + g_idx.size else (fix_idx, fix_idx))
+        self.fix_k, self.g_k = inv_used[: fix_idx.size], inv_used[fix_idx.size:]
+        self.expr_k = expr_k = np.nonzero(sc.sym_hash[used] == -1)[0] if used.size else used
+        unit_k = np.nonzero((sc.sym_hash[used] != -1) & (sc.w_pos[used] >= 0))[0] \
+            if used.size else used
+        self.used_fun = self.used_ccs = self.P_expr = None
+        if expr_k.size:
+            self.used_fun, self.used_ccs = sc.used_values(used[expr_k])
+        if use_sparse:
+            self.S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
+                                        shape=(used.size, n))
+            if expr_k.size:
+                self.P_expr = sp.csr_matrix(
+                    (np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
+                    shape=(used.size, expr_k.size))
+        else:  # small systems: dense NumPy throughout (no sparse objects: 75 us a call)
+            S_unit = np.zeros((used.size, n))
+            S_unit[unit_k, sc.w_pos[used[unit_k]]] = 1.0
+            S_unit.flags.writeable = False  # shared by the calls of this plan
+            self.S_unit = S_unit
+            if expr_k.size:
+                P_expr = np.zeros((used.size, expr_k.size))
+                P_expr[expr_k, np.arange(expr_k.size)] = 1.0
+                P_expr.flags.writeable = False
+                self.P_expr = P_expr
+
+        # where the values go in w: the start takes the guesses, then the fixed values (the
+        # later of two for one position), and the fixed values are pinned at the end
+        def last_of(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            pos = sc.w_pos[rows] if rows.size else np.zeros(0, dtype=np.int64)
+            last: dict[int, int] = {}
+            for i, k in enumerate(pos.tolist()):
+                if k >= 0:
+                    last[k] = i
+            return (np.array(list(last), dtype=np.int64),
+                    np.array(list(last.values()), dtype=np.int64))
+
+        self.start_pos, self.start_src = last_of(np.concatenate([g_idx, fix_idx]))
+        self.given = np.zeros(n, dtype=bool)
+        self.given[self.start_pos] = True
+        self.pin_pos, self.pin_src = last_of(fix_idx)
+
+        # rows that the guesses and fixed values use and that are not plain symbols (those
+        # have curvature); with z the curvature of alg matters only where some used row (or
+        # an invariant) depends on z: otherwise alg's multipliers vanish at the solution
+        self.curved = used[sc.sym_hash[used] == -1] if used.size else used
+        inv_z, v_z = sc.z_dependent(nx)
+        self.with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
+        self.decoupled = bool(nz) and n_alg == nz and not self.with_alg
+        self.z_solve = None
+        if nz and n_alg == nz:
+            key = bool(use_sparse)
+            if key not in sc.settle:
+                sc.settle[key] = _z_solver(sc, nx, use_sparse)
+            self.z_solve = sc.settle[key]
+
+
+def _plan_for(r, sc: _SystemCache, fixed: Mapping, guess: Mapping
+              ) -> tuple[_Plan, np.ndarray, np.ndarray]:
+    """``(plan, fixed values, guessed values)`` of a call: the plan of its names (made on the
+    first call with these names, with the first call's checks and messages), the values as
+    arrays in the plan's element order, checked."""
+    key = (tuple(fixed), tuple(guess))
+    plan = sc.plans.get(key)
+    if plan is not None:
+        parts = [_checked_values(len(el), el, k, fixed[k], "fixed") for k, el in plan.fixed_keys]
+        gparts = [_checked_values(len(el), el, k, guess[k], "guess") for k, el in plan.guess_keys]
+        return (plan, np.concatenate(parts) if parts else np.zeros(0),
+                np.concatenate(gparts) if gparts else np.zeros(0))
+    fixed_items: list[tuple[str, int, float]] = []
+    fixed_keys = []
+    for k, v in fixed.items():
+        got = _name_values(r, k, v, "fixed", sc.row_of, sc.names_of)
+        fixed_items += got
+        fixed_keys.append((k, [g[0] for g in got]))
+    guess_items: list[tuple[str, int, float]] = []
+    guess_keys = []
+    for k, v in guess.items():
+        got = _name_values(r, k, v, "guess", sc.row_of, sc.names_of)
+        guess_items += got
+        guess_keys.append((k, [g[0] for g in got]))
+    dup = {nm for nm, c in Counter(f[0] for f in fixed_items).items() if c > 1}
+    if dup:
+        raise InitializationError(f"fixed: {sorted(dup)} given more than once")
+    plan = _Plan(r, sc, fixed_items, guess_items, fixed_keys, guess_keys)
+    if len(sc.plans) >= _PLANS_PER_SYSTEM:
+        sc.plans.pop(next(iter(sc.plans)))
+    sc.plans[key] = plan
+    return (plan, np.array([f[2] for f in fixed_items], dtype=float),
+            np.array([g[2] for g in guess_items], dtype=float))
+
+
 def _fmt(names_vals: list[tuple[str, float]]) -> str:
     return ", ".join(f"{n} = {v:g}" for n, v in names_vals)
 
@@ -511,12 +677,12 @@ def initialize(
         t0 = float(t0)
     except (TypeError, ValueError):
         raise InitializationError(f"initialize: t0 must be a number, got {t0!r}") from None
-    if not np.isfinite(t0):
+    if not math.isfinite(t0):
         raise InitializationError(f"initialize: t0 must be a finite number, got {t0!r}")
-    nx, nz = r.nx, r.nz
-    n = nx + nz
     pv = resolve_params(r, params)
     sc = _system_cache(r)
+    nx, nz = sc.nx, sc.nz
+    n = nx + nz
     sig = signal_for(r, inputs)  # the default inputs (zero): made once per system
     u0 = sig.value(t0)
 
@@ -528,76 +694,42 @@ def initialize(
                 f"{what} must be a dict of names and values, e.g. {{'p[0]': 1.0}}, "
                 f"got {type(given).__name__}"
             )
-    fixed_items: list[tuple[str, int, float]] = []
-    for k, v in (fixed or {}).items():
-        fixed_items += _name_values(r, k, v, "fixed", sc.row_of, sc.names_of)
-    guess_items: list[tuple[str, int, float]] = []
-    for k, v in (guess or {}).items():
-        guess_items += _name_values(r, k, v, "guess", sc.row_of, sc.names_of)
-    fixed_names = [f[0] for f in fixed_items]
-    dup = {nm for nm, c in Counter(fixed_names).items() if c > 1}
-    if dup:
-        raise InitializationError(f"fixed: {sorted(dup)} given more than once")
-    fix_idx = np.array([f[1] for f in fixed_items], dtype=np.int64)
-    fix_val = np.array([f[2] for f in fixed_items])
-    g_idx = np.array([g[1] for g in guess_items], dtype=np.int64)
-    gval = np.array([g[2] for g in guess_items])
-    sc.describe(np.concatenate([fix_idx, g_idx]))
-    # two names for the same quantity (e.g. "der(p)" and "v" after elimination): symbols are
-    # compared by their hash (made once per system), other expressions pairwise
-    seen: dict[int, tuple[str, float]] = {}
-    others: list[tuple[str, ca.SX, float]] = []
-    for (ni, ri, vi) in fixed_items:
-        hsh = int(sc.sym_hash[ri])
-        if hsh != -1:
-            nj, vj = seen.setdefault(hsh, (ni, vi))
-            pairs = [(nj, vj)] if nj != ni else []
-        else:
-            e = sc.elems[ri]
-            pairs = [(nj, vj) for nj, ej, vj in others if ca.is_equal(e, ej, 2)]
-            others.append((ni, e, vi))
-        for nj, vj in pairs:
-            if abs(vi - vj) > 1e-12 * (1 + abs(vi)):
-                raise InitializationError(
-                    f"initialize: the fixed values {nj} = {vj:g} and {ni} = {vi:g} contradict "
-                    f"each other: in this system both are the same quantity; fix only one"
-                )
+    # what the *names* decide (rows, index arrays, functions of the used rows, which
+    # quantities are the same): made once per set of fixed and guessed names, kept on the
+    # system; this call only checks and places its values
+    plan, fix_val, gval = _plan_for(r, sc, fixed or {}, guess or {})
+    fixed_names = plan.fixed_names
+    fix_idx, g_idx = plan.fix_idx, plan.g_idx
+    if plan.same_later.size:
+        # two names of one quantity (e.g. "der(p)" and "v" after elimination) must agree
+        vi, vj = fix_val[plan.same_later], fix_val[plan.same_earlier]
+        bad = np.nonzero(np.abs(vi - vj) > 1e-12 * (1 + np.abs(vi)))[0]
+        if bad.size:
+            k = int(bad[0])
+            ni, nj = fixed_names[plan.same_later[k]], fixed_names[plan.same_earlier[k]]
+            raise InitializationError(
+                f"initialize: the fixed values {nj} = {vj[k]:g} and {ni} = {vi[k]:g} "
+                "contradict each other: in this system both are the same quantity; fix only one"
+            )
 
-    n_alg, n_inv = int(sc.alg.numel()), int(sc.inv.numel())
-    alg_names = r.alg_names
-    if not alg_names or len(alg_names) != n_alg:
-        alg_names = [f"alg[{i}]" for i in range(n_alg)]
-    row_names = list(alg_names) + list(r.invariant_names) + fixed_names
-    use_sparse = n >= _SPARSE_MIN_UNKNOWNS
+    n_alg, n_inv = plan.n_alg, plan.n_inv
+    row_names = plan.row_names
+    use_sparse = plan.use_sparse
+    fix_k, g_k, expr_k = plan.fix_k, plan.g_k, plan.expr_k
+    used_fun, used_ccs = plan.used_fun, plan.used_ccs
+    S_unit, P_expr = plan.S_unit, plan.P_expr
 
-    # the rows of V the fixed values and guesses use, and their Jacobian: unit rows for plain
-    # symbols of w, zero rows for other symbols (inputs, parameters), a sparse CasADi
-    # Jacobian only for the rows that are expressions (made per call, for those rows only)
-    used, inv_used = (np.unique(np.concatenate([fix_idx, g_idx]), return_inverse=True)
-                      if fix_idx.size + g_idx.size else (fix_idx, fix_idx))
-    fix_k, g_k = inv_used[: fix_idx.size], inv_used[fix_idx.size:]
-    expr_k = np.nonzero(sc.sym_hash[used] == -1)[0] if used.size else used
-    unit_k = np.nonzero((sc.sym_hash[used] != -1) & (sc.w_pos[used] >= 0))[0] if used.size \
-        else used
-    if expr_k.size:
-        used_fun, used_ccs = sc.used_values(used[expr_k])
-    if use_sparse:
-        S_unit = sp.csr_matrix((np.ones(unit_k.size), (unit_k, sc.w_pos[used[unit_k]])),
-                               shape=(used.size, n))
-        if expr_k.size:
-            P_expr = sp.csr_matrix((np.ones(expr_k.size), (expr_k, np.arange(expr_k.size))),
-                                   shape=(used.size, expr_k.size))
-    else:  # small systems: dense NumPy throughout (no sparse objects: 75 us a call)
-        S_unit = np.zeros((used.size, n))
-        S_unit[unit_k, sc.w_pos[used[unit_k]]] = 1.0
-        if expr_k.size:
-            P_expr = np.zeros((used.size, expr_k.size))
-            P_expr[expr_k, np.arange(expr_k.size)] = 1.0
+    def fixed_items() -> list[tuple[str, int, float]]:
+        """(element name, row of V, value) of each fixed value (for the messages)."""
+        return list(zip(fixed_names, fix_idx.tolist(), fix_val.tolist(), strict=True))
+
+    last_v: list = [None, None]  # the last point V was evaluated at (a copy), and V there
 
     def values_and_jac(wv, jac: bool = True):
         """All named values at ``wv``, and the Jacobian of the used rows (CSR, or dense on
         the dense path)."""
         Vv = sc.v_fun(wv, *args)[0]
+        last_v[0], last_v[1] = wv.copy(), Vv
         if not jac:
             return Vv, None
         if expr_k.size:
@@ -614,22 +746,16 @@ def initialize(
 
     # starting point: x, z from guesses/fixed values that name them directly, else 0
     w0 = np.zeros(n)
-    given = np.zeros(n, dtype=bool)
-    for _, ri, v in guess_items + fixed_items:
-        k = int(sc.w_pos[ri])
-        if k >= 0:
-            w0[k] = v
-            given[k] = True
+    given = plan.given
+    if plan.start_pos.size:
+        w0[plan.start_pos] = np.concatenate([gval, fix_val])[plan.start_src]
     # z is a function of x wherever d alg / d z is nonsingular (index 1): after every step it
     # is re-solved from alg at the new x, so that the iteration is Gauss-Newton on x alone
     # (quadratic from a rough guess; a joint step on (x, z) is spoiled by the bilinear terms
     # such as lam * q of mechanical systems)
     settled = {"ok": False}
     if nz and n_alg == nz:
-        key = bool(use_sparse)
-        if key not in sc.settle:
-            sc.settle[key] = _z_solver(sc, nx, use_sparse)
-        z_solve = sc.settle[key]
+        z_solve = plan.z_solve
 
         def settle(wv):
             out = z_solve(wv, args)
@@ -651,7 +777,7 @@ def initialize(
         return hv, np.vstack([_to_dense(Jc, sc.core_ccs), JU[fix_k]])
 
     def jac_finite(J) -> bool:
-        return bool(np.all(np.isfinite(J.data if sp.issparse(J) else J)))
+        return bool(np.isfinite(J.data if sp.issparse(J) else J).all())
 
     scale = 1.0 + np.abs(np.concatenate([fix_val, gval, [0.0]])).max()
 
@@ -660,14 +786,7 @@ def initialize(
             return 0.0
         return 0.5 * float(np.sum((values_and_jac(wv, False)[0][g_idx] - gval) ** 2))
 
-    # rows of V that the guesses and fixed values use and that are not plain symbols (those
-    # have curvature); with z the curvature of alg matters only where some used row (or an
-    # invariant) depends on z: otherwise alg's multipliers vanish at the solution
-    used = np.unique(np.concatenate([fix_idx, g_idx])) if fix_idx.size + g_idx.size else fix_idx
-    curved = used[sc.sym_hash[used] == -1] if used.size else used
-    inv_z, v_z = sc.z_dependent(nx)
-    with_alg = bool(nz) and (inv_z or bool(np.any(v_z[used])) if used.size else inv_z)
-    decoupled = bool(nz) and n_alg == nz and not with_alg
+    curved, with_alg, decoupled = plan.curved, plan.with_alg, plan.decoupled
 
     def gfun_x(_wx):
         """The guesses' values and Jacobian on x (decoupled steps; evaluated at the current
@@ -722,7 +841,7 @@ def initialize(
             return True
         Ja = abs(J) if sp.issparse(J) else np.abs(J)
         terms = np.asarray(Ja @ np.abs(wv), dtype=float).ravel()
-        return bool(np.all(np.abs(hv) <= rtol * terms + 1e-30))
+        return bool((np.abs(hv) <= rtol * terms + 1e-30).all())
 
     def scaled_step(kind, dec_k, hv, J, wv, y, dr, dc):
         """The (Gauss-)Newton step in the equilibrated coordinates ``u = w / dc`` and rows
@@ -777,7 +896,7 @@ def initialize(
         it = 0
         hv, J = hval(wv)
         fv = objective(wv)
-        if (fv == 0.0 and np.all(np.isfinite(hv)) and jac_finite(J)
+        if (fv == 0.0 and np.isfinite(hv).all() and jac_finite(J)
                 and small(hv, wv, J, tol)):
             # the start is consistent already and meets every guess (all states fixed and
             # consistent, as in a sweep over initial states): a step could only move it by
@@ -866,22 +985,17 @@ def initialize(
         # which conditions the fixed values break: evaluated with every fixed state or
         # algebraic value held exactly (z re-solved), the rest at the least-squares point
         held = wv.copy()
-        for _, ri, v in fixed_items:
-            k = int(sc.w_pos[ri])
-            if k >= 0:
-                held[k] = v
+        held[plan.pin_pos] = fix_val[plan.pin_src]
         try:
             hv_held = np.asarray(hval(settle(held))[0], dtype=float)
         except Exception:  # noqa: BLE001 - only a better message is at stake
             hv_held = None
-        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items, res, it, hv_held)
+        _raise_conflict(hv, J, row_names, n_alg, n_inv, fixed_items(), res, it,
+                        hv_held)
 
     # fixed values of states / algebraic unknowns themselves are held to the last bit (the
     # iteration leaves them within rounding of the value)
-    for _, ri, v in fixed_items:
-        k = int(sc.w_pos[ri])
-        if k >= 0:
-            wv[k] = v
+    wv[plan.pin_pos] = fix_val[plan.pin_src]
     wf = wv.copy()
 
     def dof_analysis() -> dict:
@@ -902,21 +1016,25 @@ def initialize(
             redundant = _dependent_fixed(Jd, n_alg + n_inv, fixed_names)
             free = _free_states(r, Jd[: n_alg + n_inv], nx, set(fixed_names))
         determined, notes = [], []
-        if not use_sparse and fixed_items:
-            pinned = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if int(sc.w_pos[ri]) >= 0}
+        if not use_sparse and fixed_names:
+            pinned = set(plan.pin_pos.tolist())
             determined, notes = _determined(r, wf, Jd, hval, scale, set(fixed_names), pinned,
-                                            {nm for nm, _, _ in guess_items})
+                                            set(plan.guess_names))
         # one choice of the dynamic degrees of freedom (the fixed states preferred), in state
         # order; the free values are those of it that were not fixed (also under another
         # name)
         dof_names = [nm for nm in r.x_names if nm in free]
-        fixed_x = {int(sc.w_pos[ri]) for _, ri, _ in fixed_items if 0 <= int(sc.w_pos[ri]) < nx}
+        fixed_x = {k for k in plan.pin_pos.tolist() if k < nx}
         free_only = [nm for i, nm in enumerate(r.x_names) if nm in free and i not in fixed_x]
         return {"free": free_only, "dof": len(dof_names), "dof_names": dof_names,
                 "redundant": redundant, "determined": determined, "notes": notes}
 
     x0, z0 = wv[:nx].copy(), wv[nx:].copy()
-    values = dict(zip(sc.names, values_and_jac(wv, False)[0].tolist(), strict=True))
+    # every named value at the result: those of the last evaluation where that was the point
+    # itself (a consistent start: the only one), else evaluated
+    Vv = last_v[1] if last_v[0] is not None and np.array_equal(last_v[0], wv) else \
+        values_and_jac(wv, False)[0]
+    values = dict(zip(sc.names, Vv.tolist(), strict=True))
     cons = float(np.max(np.abs(hv[: n_alg + n_inv]), initial=0.0))
     return InitialValues(
         t0, x0, z0, u0, pv, values, [], 0, [], cons, it,
@@ -1099,6 +1217,30 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
     count = 1 if affine else iters
     scalar = not sparse and int(zs.numel()) == 1 and n_alg == 1
 
+    def settle_scalar(wv: np.ndarray, vals) -> np.ndarray:
+        """One algebraic unknown (small systems): Python floats, no LAPACK call."""
+        w1 = np.array(wv, dtype=float)
+        g0 = None
+        for _ in range(count):
+            g, A = afun(w1, *vals)
+            gv, a = float(g[0]), float(A[0]) if A.size else 0.0
+            if not (math.isfinite(gv) and math.isfinite(a)):
+                return wv
+            ng = abs(gv)
+            if g0 is None:
+                g0 = ng
+            elif ng > 2 * g0:
+                return wv  # Newton diverging: keep the joint step
+            if a == 0.0:
+                return wv  # z is not determined by alg here (singular)
+            if ng == 0.0:
+                break
+            dz = -gv / a
+            w1[nx] += dz
+            if abs(dz) <= 1e-13 * (1.0 + abs(w1[nx])):
+                break
+        return w1
+
     def settle(wv: np.ndarray, vals) -> np.ndarray:
         w1 = np.array(wv, dtype=float)
         g0 = None
@@ -1112,17 +1254,6 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
                 g0 = ng
             elif ng > 2 * g0:
                 return wv  # Newton diverging: keep the joint step
-            if scalar:  # one algebraic unknown: no LAPACK call needed
-                a = float(A[0, 0])
-                if a == 0.0:
-                    return wv  # z is not determined by alg here (singular)
-                if ng == 0.0:
-                    break
-                dz = np.array([-g[0] / a])
-                w1[nx:] += dz
-                if abs(dz[0]) <= 1e-13 * (1.0 + abs(w1[nx])):
-                    break
-                continue
             if ng == 0.0 and not sparse and np.linalg.cond(A) > 1e12:
                 return wv  # alg holds, but z is not determined by it here (singular)
             if ng == 0.0:
@@ -1144,7 +1275,7 @@ def _z_solver(sc: _SystemCache, nx: int, sparse: bool, iters: int = 12):
                 break
         return w1
 
-    return settle
+    return settle_scalar if scalar else settle
 
 
 def _ccs(pattern: ca.Sparsity) -> tuple[np.ndarray, np.ndarray, tuple[int, int], np.ndarray]:

@@ -305,19 +305,31 @@ class _InputCallback(ca.Callback):
 def resolve_params(r, params: Mapping | None) -> np.ndarray:
     """Parameter vector: ``r.p_values`` overridden by ``params`` (names ``"m"``, ``"L"``,
     elements ``"k[1]"``); unknown names raise :class:`InputError` listing the known ones."""
+    names, index, n_p = r.derived("inputs.param_index", _param_index)
+    if names is not r.p_names:  # the names were replaced: not what the cache was made of
+        names, index, n_p = _param_index(r)
     pv = np.asarray(r.p_values, dtype=float).ravel()
-    if pv.size != r.n_p:
-        raise InputError(f"the system has {count(r.n_p, 'parameter')} but p_values has "
+    if pv.size != n_p:
+        raise InputError(f"the system has {count(n_p, 'parameter')} but p_values has "
                          f"{count(pv.size, 'value')}")
-    return override_params(pv, r.p_names, params)
+    return override_params(pv, names, params, index=index)
+
+
+def _param_index(r) -> tuple[list[str], dict[str, int], int]:
+    """``(p_names, {name: position}, number of parameters)`` of ``r`` (made once per system:
+    every initialize and simulate call resolves its parameters by them)."""
+    names = r.p_names
+    return names, {n: i for i, n in enumerate(names)}, r.n_p
 
 
 def override_params(p_values, p_names: list[str], params: Mapping | None,
-                    where: str = "params") -> np.ndarray:
+                    where: str = "params", index: Mapping[str, int] | None = None
+                    ) -> np.ndarray:
     """A copy of ``p_values`` (one per name in ``p_names``) with ``params`` put in, by name
     (``"m"``, a vector ``"k"`` with one value or one per element) or element (``"k[1]"``): the
     one parameter override of every entry point. Unknown names raise :class:`InputError`
-    listing the known ones.
+    listing the known ones. ``index``: ``{name: position}`` of ``p_names`` when the caller
+    keeps it (made here otherwise).
 
     >>> override_params([1.0, 2.0, 3.0], ["m", "k[0]", "k[1]"], {"k": 5.0}).tolist()
     [1.0, 5.0, 5.0]
@@ -325,8 +337,13 @@ def override_params(p_values, p_names: list[str], params: Mapping | None,
     pv = np.array(p_values, dtype=float).ravel()
     if not params:
         return pv
-    index = {n: i for i, n in enumerate(p_names)}
+    if index is None:
+        index = {n: i for i, n in enumerate(p_names)}
     for key, val in params.items():
+        i = index.get(key) if isinstance(key, str) and isinstance(val, float) else None
+        if i is not None and math.isfinite(val):  # one number for one element (a sweep's)
+            pv[i] = val
+            continue
         try:
             elems = expand_name(key, index, "the parameter list")
         except NameNotFoundError as exc:

@@ -11,7 +11,9 @@ What daekit does: :func:`analyze`, :func:`reduce_index` and :func:`initialize` r
 BLAS/LAPACK thread pool limited to :data:`BLAS_THREADS` threads (default 1; the environment
 variable ``DAEKIT_BLAS_THREADS`` sets another number, ``0`` leaves the pool alone), through
 `threadpoolctl <https://github.com/joblib/threadpoolctl>`_, and restore the previous setting
-when they return. The big systems take sparse paths (SuperLU, CasADi), which do not use the
+when they return (OpenBLAS in the main thread: through its own C functions, which threadpoolctl
+finds; limiting and restoring costs some 2 microseconds instead of 15, and a sweep makes
+hundreds of such calls). The big systems take sparse paths (SuperLU, CasADi), which do not use the
 BLAS thread pool, so nothing is lost by this; your own NumPy code outside daekit's calls keeps
 its settings. The same calls also pause Python's cyclic garbage collector while they run
 (:func:`gc_paused`; a big model's many CasADi objects made each collection expensive).
@@ -25,11 +27,12 @@ Example
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import gc
+import itertools
 import os
-from collections.abc import Callable, Iterator
+import threading
+from collections.abc import Callable
 from typing import TypeVar
 
 __all__ = ["BLAS_THREADS", "blas_threads", "gc_paused", "limit_blas_threads",
@@ -49,7 +52,7 @@ def _threads_from_env() -> int:
 #: initialization (``DAEKIT_BLAS_THREADS``; ``0``: leave the pool as it is).
 BLAS_THREADS: int = _threads_from_env()
 
-_state: dict = {"controller": None, "depth": 0, "gc_depth": 0}
+_state: dict = {"controller": None, "depth": 0, "gc_depth": 0, "pools": None}
 
 
 def _controller():
@@ -68,8 +71,57 @@ def _controller():
     return _state["controller"]
 
 
-@contextlib.contextmanager
-def blas_threads(limit: int | None = None) -> Iterator[None]:
+class _Pool:
+    """One BLAS library's thread count, read and set. OpenBLAS with its own (pthreads)
+    threads, read and set by its C functions directly in the main thread: a fraction of a
+    microsecond each, where threadpoolctl's methods take one to two (daekit limits the pool
+    around every ``initialize`` call: a sweep makes hundreds). The first setting goes through
+    threadpoolctl, which makes the main thread the one that controls that pool (threadpoolctl
+    then ignores other threads' settings, as before); other threads and other libraries
+    always go through threadpoolctl."""
+
+    def __init__(self, lib) -> None:
+        self.lib = lib
+        self.get_c = self.set_c = None
+        self.registered = False
+        if getattr(lib, "internal_api", "") == "openblas" and \
+                getattr(lib, "threading_layer", "") == "pthreads":
+            dyn = getattr(lib, "dynlib", None)
+            for pre, suf in itertools.product(("", "scipy_"), ("", "64_", "_64")):
+                get = getattr(dyn, f"{pre}openblas_get_num_threads{suf}", None)
+                put = getattr(dyn, f"{pre}openblas_set_num_threads{suf}", None)
+                if get is not None and put is not None:
+                    self.get_c, self.set_c = get, put
+                    break
+
+    def get(self) -> int:
+        if self.get_c is not None and threading.current_thread() is threading.main_thread():
+            return self.get_c()
+        return self.lib.get_num_threads()
+
+    def set(self, n: int) -> None:
+        if (self.registered and self.set_c is not None
+                and threading.current_thread() is threading.main_thread()):
+            self.set_c(n)
+            return
+        self.lib.set_num_threads(n)
+        # taken by threadpoolctl for the main thread (not ignored: no other thread controls
+        # the pool): from now on set directly
+        self.registered = (threading.current_thread() is threading.main_thread()
+                           and self.get_c is not None and self.get_c() == n)
+
+
+def _pools() -> list[_Pool]:
+    """The BLAS libraries' :class:`_Pool` objects (made once, with the controller)."""
+    pools = _state["pools"]
+    if pools is None:
+        ctrl = _controller()
+        pools = _state["pools"] = [_Pool(lib) for lib in (ctrl.lib_controllers if ctrl else ())
+                                   if lib.user_api == "blas"]
+    return pools
+
+
+class blas_threads:  # noqa: N801 - used as a function (a context manager)
     """Limit the BLAS/LAPACK thread pool to ``limit`` threads (default :data:`BLAS_THREADS`)
     inside the block; nested uses cost nothing (the outermost one sets the limit).
 
@@ -78,30 +130,32 @@ def blas_threads(limit: int | None = None) -> Iterator[None]:
     ...     float(np.linalg.svd(np.eye(3), compute_uv=False).sum())
     3.0
     """
-    limit = BLAS_THREADS if limit is None else int(limit)
-    if limit <= 0 or _state["depth"] > 0:
-        _state["depth"] += 1
+
+    __slots__ = ("limit", "changed")
+
+    def __init__(self, limit: int | None = None) -> None:
+        self.limit = BLAS_THREADS if limit is None else int(limit)
+        self.changed: list = []
+
+    def __enter__(self) -> None:
+        depth = _state["depth"]
+        _state["depth"] = depth + 1
+        if self.limit <= 0 or depth > 0:
+            return
         try:
-            yield
-        finally:
-            _state["depth"] -= 1
-        return
-    ctrl = _controller()
-    _state["depth"] += 1
-    changed = []
-    try:
-        # each BLAS library's own get/set calls (a microsecond; ThreadpoolController.limit
-        # inspects every library again on each use)
-        for lib in (ctrl.lib_controllers if ctrl else ()):
-            if lib.user_api == "blas":
-                before = lib.get_num_threads()
-                if before != limit:
-                    lib.set_num_threads(limit)
-                    changed.append((lib, before))
-        yield
-    finally:
-        for lib, before in reversed(changed):
-            lib.set_num_threads(before)
+            for pool in _pools():
+                before = pool.get()
+                if before != self.limit:
+                    pool.set(self.limit)
+                    self.changed.append((pool, before))
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+
+    def __exit__(self, *exc) -> None:
+        changed, self.changed = self.changed, []
+        for pool, before in reversed(changed):
+            pool.set(before)
         _state["depth"] -= 1
 
 
@@ -124,14 +178,12 @@ def single_threaded_worker() -> None:
     """
     if BLAS_THREADS <= 0:
         return
-    ctrl = _controller()
-    for lib in (ctrl.lib_controllers if ctrl else ()):
-        if lib.user_api == "blas" and lib.get_num_threads() != 1:
-            lib.set_num_threads(1)
+    for pool in _pools():
+        if pool.get() != 1:
+            pool.set(1)
 
 
-@contextlib.contextmanager
-def gc_paused() -> Iterator[None]:
+class gc_paused:  # noqa: N801 - used as a function (a context manager)
     """Pause Python's cyclic garbage collector inside the block (the outermost use restores
     it, if it was enabled). A big model holds hundreds of thousands of CasADi objects, which
     every collection traverses again: measured 30% of ``reduce_index`` on a 10,000-link chain.
@@ -142,15 +194,18 @@ def gc_paused() -> Iterator[None]:
     ...     gc.isenabled()
     False
     """
-    was = gc.isenabled() and _state["gc_depth"] == 0
-    _state["gc_depth"] += 1
-    if was:
-        gc.disable()
-    try:
-        yield
-    finally:
+
+    __slots__ = ("was",)
+
+    def __enter__(self) -> None:
+        self.was = gc.isenabled() and _state["gc_depth"] == 0
+        _state["gc_depth"] += 1
+        if self.was:
+            gc.disable()
+
+    def __exit__(self, *exc) -> None:
         _state["gc_depth"] -= 1
-        if was:
+        if self.was:
             gc.enable()
 
 

@@ -549,6 +549,26 @@ class _Plan:
             self.z_solve = sc.settle[key]
 
 
+def _checked_array(keys: list, values: Mapping, what: str) -> np.ndarray:
+    """The values of ``keys`` (a plan's ``(name, elements)`` pairs), checked and concatenated
+    in the plan's element order."""
+    parts = [_checked_values(len(el), el, k, values[k], what) for k, el in keys]
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _named_items(r, sc: _SystemCache, values: Mapping, what: str
+                 ) -> tuple[list[tuple[str, int, float]], list]:
+    """``(items, keys)`` of a mapping of names to values: its ``(element name, row, value)``
+    items and its ``(name, element names)`` pairs, the plan's order of the values."""
+    items: list[tuple[str, int, float]] = []
+    keys = []
+    for k, v in values.items():
+        got = _name_values(r, k, v, what, sc.row_of, sc.names_of)
+        items += got
+        keys.append((k, [g[0] for g in got]))
+    return items, keys
+
+
 def _plan_for(r, sc: _SystemCache, fixed: Mapping, guess: Mapping
               ) -> tuple[_Plan, np.ndarray, np.ndarray]:
     """``(plan, fixed values, guessed values)`` of a call: the plan of its names (made on the
@@ -557,22 +577,10 @@ def _plan_for(r, sc: _SystemCache, fixed: Mapping, guess: Mapping
     key = (tuple(fixed), tuple(guess))
     plan = sc.plans.get(key)
     if plan is not None:
-        parts = [_checked_values(len(el), el, k, fixed[k], "fixed") for k, el in plan.fixed_keys]
-        gparts = [_checked_values(len(el), el, k, guess[k], "guess") for k, el in plan.guess_keys]
-        return (plan, np.concatenate(parts) if parts else np.zeros(0),
-                np.concatenate(gparts) if gparts else np.zeros(0))
-    fixed_items: list[tuple[str, int, float]] = []
-    fixed_keys = []
-    for k, v in fixed.items():
-        got = _name_values(r, k, v, "fixed", sc.row_of, sc.names_of)
-        fixed_items += got
-        fixed_keys.append((k, [g[0] for g in got]))
-    guess_items: list[tuple[str, int, float]] = []
-    guess_keys = []
-    for k, v in guess.items():
-        got = _name_values(r, k, v, "guess", sc.row_of, sc.names_of)
-        guess_items += got
-        guess_keys.append((k, [g[0] for g in got]))
+        return (plan, _checked_array(plan.fixed_keys, fixed, "fixed"),
+                _checked_array(plan.guess_keys, guess, "guess"))
+    fixed_items, fixed_keys = _named_items(r, sc, fixed, "fixed")
+    guess_items, guess_keys = _named_items(r, sc, guess, "guess")
     dup = {nm for nm, c in Counter(f[0] for f in fixed_items).items() if c > 1}
     if dup:
         raise InitializationError(f"fixed: {sorted(dup)} given more than once")

@@ -462,3 +462,82 @@ def test_what_does_not_fit_the_shared_map_takes_the_pipe(planar, monkeypatch):
         assert np.array_equal(a["x"], b["x"]) and np.array_equal(a["der(y)"], b["der(y)"])
         assert np.array_equal(a.invariants, b.invariants)
     assert [r["period"] for r in loc.summary()] == [r["period"] for r in ser.summary()]
+
+
+def test_callable_inputs_and_script_functions_travel_by_value(dask_client, tmp_path):
+    """Inputs given as Python functions, and a reduce from a module the workers cannot import
+    (as a function of the user's script is to a Dask worker), reach the workers by value:
+    lecture L2 driven by u = sin(t) gives x2 = u = sin(t) on a thread pool and on Dask."""
+    import importlib
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    m = dk.examples.l2()
+    t = np.linspace(0, 2, 21)
+    inp = {"u": lambda t: np.sin(t), "der(u)": lambda t: np.cos(t),
+           "der(u,2)": lambda t: -np.sin(t)}
+    (tmp_path / "user_reduce_mod.py").write_text(
+        "def first_x2(traj):\n    return {'x2_end': float(traj['x2'][-1])}\n")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        mod = importlib.import_module("user_reduce_mod")
+    finally:
+        sys.path.remove(str(tmp_path))
+        os.remove(tmp_path / "user_reduce_mod.py")
+        sys.modules.pop("user_reduce_mod", None)
+    with ThreadPoolExecutor(2) as pool:
+        for ex in (pool, dask_client):
+            ens = dk.ensemble(m, t, [{}, {}], executor=ex, inputs=inp, reduce=mod.first_x2,
+                              progress=False, rtol=1e-10, atol=1e-10)
+            assert ens.failures == {}
+            for tr, row in zip(ens, ens.summary(), strict=True):
+                assert np.abs(tr["x2"] - np.sin(t)).max() < 1e-8
+                assert abs(row["x2_end"] - np.sin(2.0)) < 1e-8
+
+
+def test_a_sample_replaces_elements_of_the_shared_fixed_values():
+    """A sample's "p[0]" replaces that element of a shared fixed "p" (and a sample's "p" a
+    shared "p[0]"): the 3D pendulum (L = 1) started at p = (0, 0.6, -0.8) and at
+    (0.6, 0, -0.8) is on the rod either way; p[0] = 0 with the shared p[1] = 0, p[2] = -0.8 is
+    not, and that sample's failure names the rod."""
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    t = np.linspace(0, 0.2, 5)
+    ens = dk.ensemble(r, t, [{"p[0]": 0.0, "p[1]": 0.6}, {"p[0]": 0.6}, {"p[0]": 0.0}],
+                      executor="serial", fixed={"p": [0.6, 0.0, -0.8], "v": [0, 0, 0]},
+                      progress=False)
+    assert sorted(ens.failures) == [2] and "rod" in ens.failures[2]
+    assert np.allclose(ens[0]["p"][0], [0.0, 0.6, -0.8], atol=1e-12)
+    assert np.allclose(ens[1]["p"][0], [0.6, 0.0, -0.8], atol=1e-12)
+    ens = dk.ensemble(r, t, [{"p": [0.0, 0.0, -1.0]}], executor="serial",
+                      fixed={"p[0]": 0.6, "v": [0, 1, 0]}, progress=False)
+    assert ens.failures == {} and np.allclose(ens[0]["p"][0], [0, 0, -1], atol=1e-12)
+
+
+def test_shared_mistakes_are_named_once_before_anything_runs(planar):
+    with pytest.raises(dk.ModelError, match="fixed sets 'L', a parameter"):
+        dk.ensemble(planar, T_GRID, [{"x": 0.5}], executor="serial", fixed={"L": 2.0})
+    with pytest.raises(dk.ModelError, match="guess: .*'xx'"):
+        dk.ensemble(planar, T_GRID, [{"x": 0.5}], executor="serial", guess={"xx": 1.0})
+    with pytest.raises(dk.ModelError, match="params: .*'LL'"):
+        dk.ensemble(planar, T_GRID, [{"x": 0.5}], executor="serial", params={"LL": 2.0})
+    with pytest.raises(dk.ModelError, match="needs a system from .*dummy_derivatives"):
+        dk.ensemble(planar, T_GRID, [{"x": 0.5}], executor="serial",
+                    stabilization="dummy_derivatives")
+
+
+def test_ocp_sweep_starts_every_sample_from_the_ocps_own_parameters():
+    """Cart M s'' = u - c from rest to s = 1, der(s) = 0 in 1 s: u = M s'' + c, and
+    int s'' dt = 0, so J = 12 M^2 + c^2; a sample setting M must leave neither the next
+    sample (which sets only c: 12.25, not 48.25) nor the caller's OCP with it."""
+    m = dk.Model("cart")
+    s = m.state("s")
+    u = m.control("u")
+    M = m.parameter("M", 1.0)
+    c = m.parameter("c", 0.0)
+    m.equation(M * m.der(s, 2) - u + c, name="newton")
+    ocp = dk.OCP(m, t_final=1.0, intervals=10, controls="polynomial")
+    ocp.minimize(integral=u**2)
+    ocp.initial({"s": 0, "der(s)": 0}).final({"s": 1.0, "der(s)": 0})
+    ens = dk.ensemble_ocp(ocp, [{"M": 2.0}, {"c": 0.5}], warm_start=False, progress=False)
+    assert [round(row["objective"], 6) for row in ens.summary()] == [48.0, 12.25]
+    assert ocp.parameter_values() == {"M": 1.0, "c": 0.0}

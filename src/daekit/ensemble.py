@@ -350,21 +350,26 @@ _LOCK = threading.RLock()
 
 
 def _dumps(obj) -> bytes:
-    """pickle, or cloudpickle for lambdas and local functions (raises when neither can)."""
+    """``obj`` as bytes for another process: by cloudpickle where it is installed (it comes
+    with Dask), so that functions of the user's script (``__main__``), lambdas and local
+    functions travel by value and a worker that is not a fork of this process (Dask, spawn)
+    can run them; by plain pickle otherwise (raises when it cannot)."""
     try:
+        import cloudpickle
+    except ImportError:
         return pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    except (pickle.PicklingError, AttributeError, TypeError):
-        import cloudpickle  # comes with dask; ImportError when absent
-
-        return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _pack_system(r, inputs) -> bytes:
     """The system and the inputs in one CasADi serialization: input expressions of ``r.t``
-    (or of the model's ``m.t``) keep their symbols shared with the system."""
+    (or of the model's ``m.t``) keep their symbols shared with the system. The system alone
+    by plain pickle (nothing of the user's in it); with inputs by :func:`_dumps`."""
     import casadi as ca
 
     with ca.global_pickle_context():
+        if inputs is None:
+            return pickle.dumps((r, None), protocol=pickle.HIGHEST_PROTOCOL)
         return _dumps((r, inputs))
 
 
@@ -573,10 +578,13 @@ def _run_one(r, s: dict, job: dict, finish: bool = True) -> dict:
 
     params = dict(job["params_base"])
     fixed = dict(job["fixed"] or {})
+    elements = job["elements"]
     for k, v in s.items():
         if k in job["param_keys"]:
             params[k] = v
-        else:
+        else:  # over the shared fixed values, element by element ("p[0]" over "p")
+            for e in elements.get(k, ()):
+                fixed.pop(e, None)
             fixed[k] = v
     row: dict[str, Any] = dict(s)
     w0, c0 = time.perf_counter(), time.process_time()
@@ -812,14 +820,16 @@ def ensemble(
     for what, val in (("fixed", fixed), ("guess", guess), ("params", params)):
         if val is not None and not isinstance(val, Mapping):
             raise ModelError(f"ensemble: {what} must be a dict of names and values")
-    _check_simulate_options(simulate_options)
-    param_keys, _ = _split_keys(r, samp)
+    _check_simulate_options(r, simulate_options)
+    param_keys, var_keys = _split_keys(r, samp)
     if fixed:
         _split_keys(r, [dict(fixed)])
+    _check_shared(r, fixed, guess, params)
+    shared_fixed, elements = _fixed_under_samples(r, fixed, var_keys)
     job = {
-        "t": tg, "fixed": dict(fixed or {}), "guess": dict(guess) if guess else None,
+        "t": tg, "fixed": shared_fixed, "guess": dict(guess) if guess else None,
         "params_base": dict(params or {}), "inputs": inputs, "options": simulate_options,
-        "keep": keep, "reduce": reduce, "param_keys": param_keys,
+        "keep": keep, "reduce": reduce, "param_keys": param_keys, "elements": elements,
     }
     indexed = list(enumerate(samp))
     bar = _SampleProgress(progress, len(samp))
@@ -981,9 +991,10 @@ def _run_elsewhere(r, executor, key: str, blob: bytes, inputs, indexed: list, ch
             own.shutdown(wait=True)
 
 
-def _check_simulate_options(opts: Mapping) -> None:
+def _check_simulate_options(r, opts: Mapping) -> None:
     """The options every sample shares, checked once here (not failing every sample)."""
-    from .simulate.dispatch import STABILIZATIONS
+    from .inputs import InputError
+    from .simulate.dispatch import STABILIZATIONS, check_stabilization
 
     stab = opts.get("stabilization")
     if isinstance(stab, str) and stab.lower() == "none":
@@ -991,6 +1002,10 @@ def _check_simulate_options(opts: Mapping) -> None:
     if stab not in STABILIZATIONS:
         raise ModelError(f"ensemble: unknown stabilization {stab!r}; use "
                          + ", ".join(repr(s) for s in STABILIZATIONS))
+    try:
+        check_stabilization(r, stab)
+    except InputError as exc:
+        raise ModelError(f"ensemble: {exc}") from None
     if opts.get("method", "idas") not in ("idas", "rattle"):
         raise ModelError(f"ensemble: unknown method {opts['method']!r}; use 'idas' or 'rattle'")
     if opts.get("method", "idas") == "idas":
@@ -1006,6 +1021,64 @@ def _check_simulate_options(opts: Mapping) -> None:
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                 and v > 0):
             raise ModelError(f"ensemble: {name} must be a positive number, got {v!r}")
+
+
+def _check_shared(r, fixed: Mapping | None, guess: Mapping | None,
+                  params: Mapping | None) -> None:
+    """The initial values, guesses and parameters every sample shares, checked once here: a
+    mistake there would fail every sample with the same message."""
+    from .inputs import InputError, resolve_params
+    from .model import NameNotFoundError, expand_name
+
+    pmap = dict.fromkeys(r.p_names, 0)
+    for what, given in (("fixed", fixed), ("guess", guess)):
+        for k in given or {}:
+            try:  # a parameter first, as for the samples' names (_split_keys)
+                expand_name(k, pmap)
+            except NameNotFoundError:
+                pass
+            else:
+                raise ModelError(
+                    f"ensemble: {what} sets {k!r}, a parameter of the model; give parameter "
+                    "values with params={...} (shared) or in the samples"
+                )
+            try:
+                expand_name(k, r.variables, "the model's variables")
+            except NameNotFoundError as exc:
+                raise ModelError(f"ensemble: {what}: {exc}") from None
+    try:
+        resolve_params(r, params)
+    except InputError as exc:
+        raise ModelError(f"ensemble: {exc}") from None
+
+
+def _fixed_under_samples(r, fixed: Mapping | None, var_keys) -> tuple[dict, dict]:
+    """``(fixed values, elements)``: the shared fixed values, those that a sample's variable
+    names overlap split into their elements (a sample's ``"p[0]"`` then replaces that element
+    of a shared ``"p"``, and a sample's ``"p"`` a shared ``"p[0]"``), and the element names of
+    every variable name the samples set."""
+    from .model import expand_name
+
+    elements = {k: expand_name(k, r.variables) for k in var_keys}
+    covered = {e for els in elements.values() for e in els}
+    out: dict = {}
+    for k, v in (fixed or {}).items():
+        els = expand_name(k, r.variables)
+        if covered.isdisjoint(els):
+            out[k] = v
+            continue
+        try:
+            vals = np.asarray(v, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise ModelError(f"ensemble: fixed[{k!r}] must be a number or a list of numbers, "
+                             f"got {v!r}") from None
+        if vals.size == 1:
+            vals = np.repeat(vals, len(els))
+        if vals.size != len(els):
+            raise ModelError(f"ensemble: fixed[{k!r}] has {len(els)} elements "
+                             f"({', '.join(els)}) but {vals.size} values were given")
+        out.update({e: float(x) for e, x in zip(els, vals.tolist(), strict=True)})
+    return out, elements
 
 
 def _apply_reduce(res: dict, reduce: Callable, keep: str) -> None:
@@ -1100,8 +1173,32 @@ def ensemble_ocp(
     Xs = np.nan_to_num((X - np.nanmin(X, axis=0)) / np.where(span > 0, span, 1.0))
     order = _nearest_path(Xs) if warm_start else list(range(len(samp)))
     results: list[dict | None] = [None] * len(samp)
-    solved: list[int] = []
     bar = _SampleProgress(progress, len(samp), "ocp sweep")
+    # every sample starts from the OCP's own parameter values (a sample setting M must not
+    # leave M set for the next sample, nor for the caller: restored at the end)
+    base = {} if is_factory else problem.parameter_values()
+    try:
+        _solve_ocp_samples(problem, samp, order, Xs, is_factory, base, warm_start, reduce,
+                           solve_options, results, bar)
+    finally:
+        if base:
+            problem.set_parameters(base)
+    bar.close()
+    for res in results:
+        sol = res.pop("solution_", None)
+        if keep == "solution":
+            res["trajectory"] = sol
+    stats = {"executor": "serial", "workers": 1, "chunks": len(samp), "notes": [],
+             "warm_start": warm_start, "order": order, "wall_time": time.perf_counter() - wall0}
+    return Ensemble(samp, results, np.zeros(2), "trajectory" if keep == "solution" else "summary",
+                    stats)
+
+
+def _solve_ocp_samples(problem, samp: list[dict], order: list[int], Xs: np.ndarray,
+                       is_factory: bool, base: dict, warm_start: bool, reduce, solve_options,
+                       results: list, bar) -> None:
+    """The solves of :func:`ensemble_ocp` in ``order``, each result into ``results``."""
+    solved: list[int] = []
     failed = 0
     for done, i in enumerate(order, 1):
         s = samp[i]
@@ -1113,7 +1210,7 @@ def ensemble_ocp(
             src = solved[int(np.argmin(d))]
         res: dict[str, Any] = {"row": row, "error": ""}
         try:
-            ocp = problem(**s) if is_factory else problem.set_parameters(s)
+            ocp = problem(**s) if is_factory else problem.set_parameters({**base, **s})
             guess = results[src].get("solution_") if src >= 0 else None
             sol = ocp.solve(guess=guess, **solve_options)
             ok = bool(sol.success)
@@ -1136,15 +1233,6 @@ def ensemble_ocp(
         results[i] = res
         failed += bool(res["error"])
         bar.update(done, failed)
-    bar.close()
-    for res in results:
-        sol = res.pop("solution_", None)
-        if keep == "solution":
-            res["trajectory"] = sol
-    stats = {"executor": "serial", "workers": 1, "chunks": len(samp), "notes": [],
-             "warm_start": warm_start, "order": order, "wall_time": time.perf_counter() - wall0}
-    return Ensemble(samp, results, np.zeros(2), "trajectory" if keep == "solution" else "summary",
-                    stats)
 
 
 def _scalar(v) -> float:

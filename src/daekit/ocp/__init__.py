@@ -436,6 +436,19 @@ class OCP:
         self._default_guess = dict(values)
         return self
 
+    def parameter_values(self) -> dict[str, float]:
+        """The fixed parameter values, one per parameter element: ``{"L": 1.0, ...}`` (what
+        :meth:`set_parameters` takes back, e.g. to restore them after a sweep).
+
+        >>> import daekit as dk
+        >>> m = dk.Model("cart"); s = m.state("s"); u = m.control("u")
+        >>> M = m.parameter("M", 1.0)
+        >>> _ = m.equation(M * m.der(s, 2) - u, name="newton")
+        >>> OCP(m).set_parameters({"M": 2.0}).parameter_values()
+        {'M': 2.0}
+        """
+        return dict(zip(self._aug.p_names, self._p_values.tolist(), strict=True))
+
     def set_parameters(self, values: dict) -> OCP:
         """Change fixed parameter values: ``{"L": 2.0}``."""
         for name, val in values.items():

@@ -27,7 +27,7 @@ from .projection import DriftMonitor, Projector, default_drift_tol
 from .system import EVENT_KEYWORDS, check_idas_options, check_sized_options, signal_for, system_for
 from .trajectory import Trajectory
 
-__all__ = ["simulate", "STABILIZATIONS"]
+__all__ = ["simulate", "STABILIZATIONS", "check_stabilization"]
 
 STABILIZATIONS = (None, "baumgarte", "projection", "dummy_derivatives")
 
@@ -141,6 +141,30 @@ def _stabilization(stabilization):
         raise InputError(
             f"simulate: unknown stabilization {stabilization!r}; use None, 'baumgarte', "
             "'projection' or 'dummy_derivatives'"
+        )
+    return stabilization
+
+
+def check_stabilization(r, stabilization):
+    """The stabilization a run of ``r`` takes: ``stabilization`` checked (``"none"`` is
+    None), dummy derivatives where ``r`` was reduced by them and none was asked for (without
+    the re-selection monitor a run would cross a singular pivot onto a wrong solution), and
+    a dummy-derivative run refused on a system reduced otherwise. Raises InputError.
+
+    >>> import daekit as dk
+    >>> r = dk.reduce_index(dk.examples.pendulum_planar(), method="dummy_derivatives")
+    >>> check_stabilization(r, "none")
+    'dummy_derivatives'
+    """
+    stabilization = _stabilization(stabilization)
+    method = getattr(r, "method", "")
+    if stabilization is None and method == "dummy_derivatives":
+        stabilization = "dummy_derivatives"
+    if stabilization == "dummy_derivatives" and method != "dummy_derivatives":
+        raise InputError(
+            "simulate: stabilization='dummy_derivatives' needs a system from "
+            "dk.reduce_index(model, method='dummy_derivatives'); this one was made by "
+            f"{method or '?'!r}"
         )
     return stabilization
 
@@ -349,11 +373,7 @@ def simulate(
                 traj.stats["reduced"] = notes[0]
             return traj
     options = {k: v for k, v in options.items() if k not in event_keys}
-    stabilization = _stabilization(stabilization)
-    if stabilization is None and getattr(r, "method", "") == "dummy_derivatives":
-        # a dummy-derivative selection holds only while its pivot is regular: without the
-        # re-selection monitor the run would cross the singularity onto a wrong solution
-        stabilization = "dummy_derivatives"
+    stabilization = check_stabilization(r, stabilization)
     for name, tol in (("rtol", rtol), ("atol", atol)):
         if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
             raise InputError(f"simulate: {name} must be a positive number, got {tol!r}")
@@ -361,12 +381,6 @@ def simulate(
                                       and math.isfinite(drift_tol) and drift_tol > 0):
         raise InputError(f"simulate: drift_tol must be a positive number, got {drift_tol!r}")
     tg = check_grid(t)
-    if stabilization == "dummy_derivatives" and getattr(r, "method", "") != "dummy_derivatives":
-        raise InputError(
-            "simulate: stabilization='dummy_derivatives' needs a system from "
-            "dk.reduce_index(model, method='dummy_derivatives'); this one was made by "
-            f"{getattr(r, 'method', '?')!r}"
-        )
     if stabilization in ("baumgarte", "projection") and not r.invariants.numel():
         warnings.warn(
             f"simulate: stabilization={stabilization!r} has nothing to act on (this system has "

@@ -25,8 +25,10 @@ Where the samples run (``executor=``):
   deserializes it once (a cache keyed by its digest).
 
 Callables in the options (``reduce=lambda traj: ...``, inputs given as Python functions) are
-shipped with ``cloudpickle`` when plain pickling cannot (it comes with Dask); without it, a
-``reduce`` that cannot be pickled runs here on the returned trajectories.
+shipped with ``cloudpickle`` where it is installed (it comes with Dask): functions of your
+script travel by value, so workers that cannot import your script (a Dask cluster, spawned
+processes) run them too. Without it they go by plain pickle, and a ``reduce`` that cannot be
+pickled runs here on the returned trajectories.
 
 Example: the period of a planar pendulum for three rod lengths, released at rest from 60
 degrees (the exact period is :func:`daekit.examples.exact.pendulum_planar_period`):
@@ -761,12 +763,14 @@ def ensemble(
         Output times, shared by all samples.
     samples : list of dict, or dict of equal-length arrays
         Keys are daekit names: a parameter (``"L"``) sets that parameter, a variable
-        (``"p[0]"``, ``"der(p)"``) a fixed initial value, merged over ``fixed``.
+        (``"p[0]"``, ``"der(p)"``) a fixed initial value, merged over ``fixed`` element by
+        element (a sample's ``"p[0]"`` replaces that element of a shared ``fixed={"p": ...}``).
     executor : None, "serial", a concurrent.futures.Executor, or a dask.distributed.Client
         Where the samples run (see the module docstring). None: local processes, one per core.
     fixed, guess : dict, optional
         Fixed initial values and guesses shared by all samples (as for
-        :func:`daekit.initialize`).
+        :func:`daekit.initialize`); their names, ``params``' names and the stabilization are
+        checked once, before any sample runs.
     progress : bool
         A bar over samples on stderr, drawn only on a terminal.
     keep : "trajectory" or "summary"

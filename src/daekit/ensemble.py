@@ -304,31 +304,33 @@ class Ensemble:
         return df
 
     @staticmethod
-    def summary_format(path: str | os.PathLike) -> str:
+    def summary_format(path: str | os.PathLike, where: str | None = None) -> str:
         """``"csv"`` or ``"parquet"``: the format :meth:`save_summary` writes to ``path`` (by
         its extension, in any case), checked before anything runs: a ModelError for another
         extension, a folder that does not exist (or cannot be written) and, for Parquet,
-        pandas or pyarrow missing.
+        pandas or pyarrow missing. The messages begin with ``where`` (default
+        ``"save_summary: 'PATH'"``; the command line's is ``"--out PATH"``).
 
         >>> Ensemble.summary_format("sweep.CSV")
         'csv'
         """
         path = os.fspath(path)
+        where = where or f"save_summary: {path!r}"
         ext = os.path.splitext(path)[1].lower()
         if ext not in (".csv", ".parquet"):
-            raise ModelError(f"save_summary: {path!r}: write a .csv or a .parquet file")
+            raise ModelError(f"{where}: write a .csv or a .parquet file")
         folder = os.path.dirname(path) or "."
         if not os.path.isdir(folder):
-            raise ModelError(f"save_summary: {path!r}: the folder {folder!r} does not exist")
+            raise ModelError(f"{where}: the folder {folder!r} does not exist")
         if not os.access(folder, os.W_OK):
-            raise ModelError(f"save_summary: {path!r}: the folder {folder!r} cannot be written")
+            raise ModelError(f"{where}: the folder {folder!r} cannot be written")
         if ext == ".parquet":
             try:
                 import pandas  # noqa: F401
                 import pyarrow  # noqa: F401
             except ImportError:
                 raise ModelError(
-                    f"save_summary: {path!r}: Parquet needs pandas and pyarrow (pip install "
+                    f"{where}: Parquet needs pandas and pyarrow (pip install "
                     "pandas pyarrow); or write a .csv file"
                 ) from None
         return ext[1:]

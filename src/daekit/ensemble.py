@@ -146,9 +146,8 @@ def _numbers(v, what: str, max_ndim: int) -> np.ndarray:
     except (ValueError, TypeError):  # ragged nesting: NumPy refuses it
         ok = False
     if not ok:
-        shape = "a number" if max_ndim == 0 else (
-            "a number or a flat list of numbers (a vector)" if max_ndim == 1 else
-            "one number (or one flat list of numbers) per sample")
+        shape = ("a number or a flat list of numbers (a vector)" if max_ndim == 1 else
+                 "one number (or one flat list of numbers) per sample")
         raise ModelError(f"ensemble: {what} {_short(v)}, which is not {shape}")
     return raw.astype(float)
 

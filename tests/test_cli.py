@@ -184,3 +184,61 @@ def test_a_script_with_two_models_asks_which(tmp_path, capsys):
     f.write_text(SCRIPT_FILE + "m2 = dk.examples.pendulum3d()\n")
     assert main(["analyze", str(f)]) == 2
     assert "models: m, m2 (name one:" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------------
+# sweep: what can be checked is checked before the first sample runs
+SWEEP = ["sweep", "pendulum_planar", "--param", "L=0.5:2.0:3", "--t-end", "0.5", "--points",
+         "11", "--guess", '{"x": 0.5, "y": -0.5}', "--fixed", '{"der(x)": 0}', "--quiet",
+         "--serial"]
+
+
+@pytest.fixture
+def no_sweep(monkeypatch):
+    """daekit.ensemble.ensemble fails the test: the sweep must not start."""
+    import sys
+
+    def never(*args, **kwargs):
+        raise AssertionError("the sweep ran")
+
+    monkeypatch.setattr(sys.modules["daekit.ensemble"], "ensemble", never)
+
+
+@pytest.mark.parametrize("out, message", [
+    ("s.txt", r"--out .*s\.txt: write a \.csv or a \.parquet file"),
+    ("nodir/s.csv", r"--out .*nodir/s\.csv: the folder '.*nodir' does not exist"),
+])
+def test_sweep_checks_the_output_file_first(tmp_path, capsys, no_sweep, out, message):
+    rc = main([*SWEEP, "--out", str(tmp_path / out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("daekit: error: --out") and "Traceback" not in err
+    assert __import__("re").search(message, err)
+
+
+def test_sweep_parquet_without_pyarrow_is_refused_first(tmp_path, capsys, no_sweep,
+                                                        monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # import pyarrow raises ImportError
+    rc = main([*SWEEP, "--out", str(tmp_path / "s.parquet")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Parquet needs pandas and pyarrow" in err and "Traceback" not in err
+
+
+def test_sweep_bad_scheduler_and_seed_are_daekit_errors(tmp_path, capsys, no_sweep):
+    rc = main([*SWEEP[:-1], "--scheduler", "nonsense", "--out", str(tmp_path / "s.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.startswith("daekit: error: --scheduler nonsense: cannot connect")
+    rc = main([*SWEEP[:2], *SWEEP[4:], "--draw", "g=uniform:9:10", "--seed", "-1",
+               "--out", str(tmp_path / "s.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "seed must be a non-negative integer" in err
+
+
+def test_sweep_upper_case_extension(tmp_path, capsys):
+    out = tmp_path / "S.CSV"
+    assert main([*SWEEP, "--out", str(out)]) == 0
+    import pandas as pd
+
+    df = pd.read_csv(out, index_col="sample")
+    assert np.allclose(df["L"], [0.5, 1.25, 2.0]) and df["success"].all()

@@ -369,13 +369,15 @@ def _parse_draw(spec: str) -> tuple[str, tuple]:
 def _cmd_sweep(args) -> int:
     import itertools
 
-    from .ensemble import ensemble
+    from .ensemble import Ensemble, ensemble
 
-    obj = load_target(args.target)
-    r = _as_reduced(obj, "idas", args.stabilization)
     if not args.param and not args.draw:
         raise ModelError("sweep: give --param NAME=LO:HI:N (a grid) or --draw NAME=DIST:A:B "
                          "--n N (Monte Carlo)")
+    # the summary file is checked first: a bad --out must not cost the whole sweep
+    Ensemble.summary_format(args.out, where=f"--out {args.out}")
+    obj = load_target(args.target)
+    r = _as_reduced(obj, "idas", args.stabilization)
     grids = [_parse_param(p) for p in args.param or []]
     spec = dict(_parse_draw(d) for d in args.draw or [])
     names = [g[0] for g in grids] + list(spec)
@@ -401,8 +403,10 @@ def _cmd_sweep(args) -> int:
             raise ModelError('--scheduler needs Dask: pip install "daekit[dask]"') from None
         try:
             client = Client(args.scheduler, timeout=args.timeout)
-        except OSError as exc:
-            raise ModelError(f"--scheduler {args.scheduler}: cannot connect ({exc})") from None
+        except Exception as exc:  # noqa: BLE001 - a bad address (ValueError), no scheduler
+            # there (OSError, TimeoutError), ...: the user's address, reported without traceback
+            raise ModelError(f"--scheduler {args.scheduler}: cannot connect "
+                             f"({type(exc).__name__}: {exc})") from None
         executor = client
     try:
         ens = ensemble(r, t, samples, executor=executor, fixed=fixed, guess=guess, inputs=inputs,

@@ -80,30 +80,41 @@ KEEP = ("trajectory", "summary")
 # ----------------------------------------------------------------------------------------------
 # samples
 def _as_sample_list(samples) -> list[dict]:
-    """A list of dicts from a list of dicts or a dict of equal-length arrays."""
+    """A list of dicts from a list of dicts, a dict of equal-length arrays or a
+    ``pandas.DataFrame`` (one sample per row; duck-typed, pandas is not imported here).
+
+    Every key must be a name (a str) and every value a number or a flat list of numbers:
+    checked here, before anything runs, so that a bad value is named by its sample and key
+    instead of surfacing from NumPy after the sweep."""
+    if hasattr(samples, "columns") and hasattr(samples, "to_dict") \
+            and not isinstance(samples, Mapping):
+        for c in samples.columns:
+            _check_key(c, "a column of the DataFrame of samples")
+        samples = samples.to_dict(orient="records")
     if isinstance(samples, Mapping):
         if not samples:
             raise ModelError("ensemble: samples is an empty dict; give e.g. {'L': [0.5, 1.0]}")
         lengths = {}
+        cols = {}
         for k, v in samples.items():
-            arr = np.asarray(v, dtype=float)
+            _check_key(k, "a key of the dict of samples")
+            arr = _numbers(v, f"samples[{k!r}] is", max_ndim=2)
             if arr.ndim == 0:
                 raise ModelError(
                     f"ensemble: samples[{k!r}] is a single number; a dict of samples maps each "
                     "name to one value per sample (an array), e.g. {'L': np.linspace(0.5, 2, 16)}"
                 )
-            lengths[k] = arr.shape[0]
+            lengths[k], cols[k] = arr.shape[0], arr
         if len(set(lengths.values())) != 1:
             raise ModelError(
                 "ensemble: the arrays of a dict of samples must have equal lengths, got "
                 + ", ".join(f"{k}: {n}" for k, n in lengths.items())
             )
         n = next(iter(lengths.values()))
-        cols = {k: np.asarray(v, dtype=float) for k, v in samples.items()}
         return [{k: _plain(cols[k][i]) for k in cols} for i in range(n)]
     if isinstance(samples, (str, bytes)) or not isinstance(samples, Iterable):
         raise ModelError(
-            f"ensemble: samples must be a list of dicts or a dict of arrays, got "
+            f"ensemble: samples must be a list of dicts, a dict of arrays or a DataFrame, got "
             f"{type(samples).__name__}"
         )
     out = []
@@ -113,8 +124,39 @@ def _as_sample_list(samples) -> list[dict]:
                 f"ensemble: sample {i} is a {type(s).__name__}, not a dict of names and values "
                 "(e.g. {'L': 1.0, 'p[0]': 0.3})"
             )
+        for k, v in s.items():
+            _check_key(k, f"a key of sample {i}")
+            _numbers(v, f"sample {i} sets {k!r} to", max_ndim=1)
         out.append(dict(s))
     return out
+
+
+def _check_key(k, where: str) -> None:
+    if not isinstance(k, str):
+        raise ModelError(
+            f"ensemble: {where} is {k!r} (of type {type(k).__name__}); the keys are daekit names "
+            "(str), e.g. 'L', 'p[0]' or 'der(x)'"
+        )
+
+
+def _numbers(v, what: str, max_ndim: int) -> np.ndarray:
+    """``v`` as a float array of at most ``max_ndim`` dimensions, else a ModelError saying
+    ``what`` was given (strings are refused: ``"1.5"`` is text, not a number)."""
+    try:
+        raw = np.asarray(v)
+        ok = raw.dtype.kind in "biuf" and raw.ndim <= max_ndim
+    except (ValueError, TypeError):  # ragged nesting: NumPy refuses it
+        ok = False
+    if not ok:
+        shape = ("a number or a flat list of numbers (a vector)" if max_ndim == 1 else
+                 "one number (or one flat list of numbers) per sample")
+        raise ModelError(f"ensemble: {what} {_short(v)}, which is not {shape}")
+    return raw.astype(float)
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _plain(v):
@@ -122,13 +164,17 @@ def _plain(v):
     return float(a) if a.ndim == 0 else a.tolist()
 
 
-def _split_keys(r, samples: list[dict]) -> tuple[set[str], set[str]]:
-    """(parameter keys, variable keys) used by the samples; unknown names raise ModelError."""
+def _split_keys(r, samples: list[dict], source: str = "sample") -> tuple[set[str], set[str]]:
+    """(parameter keys, variable keys) used by the samples; unknown names and inputs raise
+    ModelError. ``source`` says where the names come from in the messages: ``"sample"``
+    (``"sample 3 sets 'x'"``) or e.g. ``"fixed"`` (``"fixed sets 'x'"``, for one dict)."""
     from .model import NameNotFoundError, expand_name
 
     pmap = dict.fromkeys(r.p_names, 0)
+    umap = dict.fromkeys(r.u_names, 0)
     params, variables = set(), set()
     for i, s in enumerate(samples):
+        who = f"sample {i}" if source == "sample" else source
         for k in s:
             if k in params or k in variables:
                 continue
@@ -139,14 +185,26 @@ def _split_keys(r, samples: list[dict]) -> tuple[set[str], set[str]]:
             except NameNotFoundError:
                 pass
             try:
+                expand_name(k, umap)
+            except NameNotFoundError:
+                pass
+            else:  # an input is a function of time, not an initial value to fix
+                raise ModelError(
+                    f"ensemble: {who} sets {k!r}, an input of the model; give inputs with "
+                    "inputs={...}"
+                )
+            try:
                 expand_name(k, r.variables)
                 variables.add(k)
             except NameNotFoundError:
-                known = sorted({n.rsplit("[", 1)[0] for n in r.p_names})
+                known = sorted(_vector_names(r.p_names))
+                others = set(r.p_names) | set(r.u_names)
+                names = _vector_names([n for n in r.variables if n not in others])
+                shown = ", ".join(names[:12]) + (", ..." if len(names) > 12 else "")
                 raise ModelError(
-                    f"ensemble: sample {i} sets {k!r}, which is neither a parameter "
+                    f"ensemble: {who} sets {k!r}, which is neither a parameter "
                     f"({', '.join(known) or 'none'}) nor a variable of the model "
-                    f"({', '.join(_vector_names(r.variables)[:12])}, ...)"
+                    f"({shown or 'none'})"
                 ) from None
     return params, variables
 
@@ -176,7 +234,8 @@ class Ensemble:
     rows : list of dict
         One row per sample (see :meth:`summary`).
     t : numpy.ndarray
-        The output times shared by all trajectories.
+        The output times of the sweep (every trajectory has a row at each of them, up to a
+        terminal event; events add rows, see :meth:`values`).
     stats : dict
         ``wall_time`` (s, the whole sweep), ``executor`` (what ran it), ``workers``,
         ``chunks`` (tasks), ``system_bytes`` and ``system_transfers`` (the size of the
@@ -186,8 +245,9 @@ class Ensemble:
         that the model was reduced automatically).
 
     ``len(ens)`` is the number of samples; ``ens[i]`` the :class:`~daekit.Trajectory` of sample
-    ``i`` (None when it failed); iterating gives the trajectories in order. With
-    ``keep="summary"`` the trajectories were not kept and indexing raises.
+    ``i`` (None when it failed, also when only its ``reduce`` raised); iterating gives the
+    trajectories in order. With ``keep="summary"`` the trajectories were not kept and indexing
+    raises.
     """
 
     def __init__(self, samples, results, t, keep, stats, system=None) -> None:
@@ -196,7 +256,10 @@ class Ensemble:
         self.keep = keep
         self.stats = stats
         self.system = system
-        self._traj = [res.get("trajectory") for res in results]
+        # a failed sample has no entry, whatever was computed before it failed (a trajectory
+        # whose reduce raised, an OCP solution that did not converge): values() and plot()
+        # then leave it out with the others
+        self._traj = [None if res.get("error") else res.get("trajectory") for res in results]
         self.rows = [res["row"] for res in results]
         self.failures = {i: f"sample {i} ({_describe(samples[i])}): {res['error']}"
                          for i, res in enumerate(results) if res.get("error")}
@@ -241,20 +304,52 @@ class Ensemble:
         df.index.name = "sample"
         return df
 
+    @staticmethod
+    def summary_format(path: str | os.PathLike, where: str | None = None) -> str:
+        """``"csv"`` or ``"parquet"``: the format :meth:`save_summary` writes to ``path`` (by
+        its extension, in any case), checked before anything runs: a ModelError for another
+        extension, a folder that does not exist (or cannot be written) and, for Parquet,
+        pandas or pyarrow missing. The messages begin with ``where`` (default
+        ``"save_summary: 'PATH'"``; the command line's is ``"--out PATH"``).
+
+        >>> Ensemble.summary_format("sweep.CSV")
+        'csv'
+        """
+        path = os.fspath(path)
+        where = where or f"save_summary: {path!r}"
+        ext = os.path.splitext(path)[1].lower()
+        if ext not in (".csv", ".parquet"):
+            raise ModelError(f"{where}: write a .csv or a .parquet file")
+        folder = os.path.dirname(path) or "."
+        if not os.path.isdir(folder):
+            raise ModelError(f"{where}: the folder {folder!r} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise ModelError(f"{where}: the folder {folder!r} cannot be written")
+        if ext == ".parquet":
+            try:
+                import pandas  # noqa: F401
+                import pyarrow  # noqa: F401
+            except ImportError:
+                raise ModelError(
+                    f"{where}: Parquet needs pandas and pyarrow (pip install "
+                    "pandas pyarrow); or write a .csv file"
+                ) from None
+        return ext[1:]
+
     def save_summary(self, path: str | os.PathLike) -> str:
         """Write :meth:`summary` to ``path``: ``.csv`` (no extra dependency) or ``.parquet``
-        (pandas and pyarrow). Returns the path written."""
+        (pandas and pyarrow), the extension in any case (:meth:`summary_format`). Vector
+        values are Parquet lists (null where a sample has none). Returns the path written."""
         path = os.fspath(path)
+        fmt = self.summary_format(path)
         rows = self.summary()
-        if path.endswith(".parquet"):
+        if fmt == "parquet":
             df = self.to_pandas()
             for c in df.columns:  # vector values: keep them as lists (Parquet list columns)
                 if df[c].map(lambda v: isinstance(v, (list, tuple))).any():
-                    df[c] = df[c].map(lambda v: list(v) if isinstance(v, (list, tuple)) else [v])
+                    df[c] = df[c].map(_parquet_list)
             df.to_parquet(path)
             return path
-        if not path.endswith(".csv"):
-            raise ModelError(f"save_summary: {path!r}: write a .csv or a .parquet file")
         import csv
 
         cols: list[str] = []
@@ -267,30 +362,69 @@ class Ensemble:
                 w.writerow([i, *[_csv_value(r.get(c, "")) for c in cols]])
         return path
 
+    @property
+    def grid(self) -> np.ndarray:
+        """The times of :meth:`values`, :meth:`percentiles` and :meth:`plot`: :attr:`t` for
+        :func:`ensemble`; for :func:`ensemble_ocp` the solutions' own grid when they all
+        share one (else a ModelError: read them one at a time, ``ens[i].t``)."""
+        kept = [(i, tr) for i, tr in enumerate(self) if tr is not None]
+        increasing = self.t.ndim == 1 and self.t.size >= 2 and bool(np.all(np.diff(self.t) > 0))
+        if not kept or (increasing and all(_rows_on(_times_of(tr), self.t) is not None
+                                           for _, tr in kept)):
+            return self.t
+        grids = [_times_of(tr) for _, tr in kept]
+        if all(g.shape == grids[0].shape and np.array_equal(g, grids[0]) for g in grids[1:]):
+            return grids[0]
+        shown = "; ".join(f"sample {i}: {g.size} times from {g[0]:g} to {g[-1]:g}"
+                          for (i, _), g in list(zip(kept, grids, strict=True))[:3] if g.size)
+        raise ModelError(
+            f"ensemble: the entries do not share one time grid ({shown}, ...); read them one "
+            "at a time: ens[i].t and ens[i][name]"
+        )
+
     def values(self, name: str) -> np.ndarray:
-        """``(samples, N)`` (or ``(samples, N, size)``) array of ``name`` over the successful
-        trajectories (failed samples are NaN rows)."""
-        got = [tr[name] if tr is not None else None for tr in self]
-        shape = next((np.shape(g) for g in got if g is not None), None)
-        if shape is None:
+        """``(samples, N)`` (or ``(samples, N, size)``) array of ``name`` at the times
+        :attr:`grid` (the output times :attr:`t`); failed samples are NaN rows.
+
+        A trajectory with events has more rows than the output times (two at every jump:
+        before and after it); each is read at the output times, the value of its last row at
+        or before each time (so a jump exactly at an output time gives the value after it),
+        and is NaN at the output times after a terminal event stopped it."""
+        grid = self.grid
+        got = []
+        for tr in self:
+            if tr is None:
+                got.append(None)
+                continue
+            idx = _rows_on(_times_of(tr), grid)  # not None: grid checked it
+            v = np.asarray(tr[name], dtype=float)
+            out = v[np.maximum(idx, 0)]
+            out[idx < 0] = np.nan
+            got.append(out)
+        tail = next((g.shape[1:] for g in got if g is not None), None)
+        if tail is None:
             raise ModelError(f"ensemble: no successful trajectory holds {name!r}")
-        return np.stack([np.asarray(g, float) if g is not None else np.full(shape, np.nan)
+        return np.stack([g if g is not None else np.full((grid.size, *tail), np.nan)
                          for g in got])
 
     def percentiles(self, name: str, q: Sequence[float] = (5, 50, 95)) -> np.ndarray:
-        """Percentiles ``q`` of ``name`` across the successful samples at every time:
-        an array ``(len(q), N[, size])``."""
-        return np.nanpercentile(self.values(name), q, axis=0)
+        """Percentiles ``q`` of ``name`` across the successful samples at every time of
+        :attr:`grid`: an array ``(len(q), N[, size])``; NaN where no sample has a value (all
+        stopped by a terminal event)."""
+        return _nanpercentile(self.values(name), q)
 
     def plot(self, name: str, bands: Sequence[tuple[float, float]] = ((5, 95), (25, 75)),
              ax=None, faint: bool = True, color: str = "C0", max_lines: int = 400):
-        """All trajectories of ``name`` faint, with percentile bands and the median.
+        """All trajectories of ``name`` faint, with percentile bands and the median, at the
+        times :attr:`grid` (the samples still running at each time: see :meth:`values`).
 
         ``bands``: pairs of percentiles shaded (darker for inner ones). A vector name gives one
-        panel per element. Returns the matplotlib Figure.
+        panel per element: ``ax``, when given, is one Axes per element (a sequence for a
+        vector). Returns the matplotlib Figure.
         """
         import matplotlib.pyplot as plt
 
+        grid = self.grid
         V = self.values(name)
         if V.ndim == 2:
             V = V[:, :, None]
@@ -300,20 +434,26 @@ class Ensemble:
                                      squeeze=False)
             axes = axes[:, 0]
         else:
-            axes = np.atleast_1d(ax)
+            axes = list(np.ravel(ax)) if isinstance(ax, (list, tuple, np.ndarray)) else [ax]
+            if len(axes) != k:
+                raise ModelError(
+                    f"ensemble.plot: {name!r} has {k} element{'s' if k > 1 else ''}, one "
+                    f"panel each: give ax= {'a sequence of ' + str(k) + ' axes' if k > 1 else 'one axes'} "
+                    f"(got {len(axes)}), or no ax for a new figure"
+                )
             fig = axes[0].figure
-        ok = ~np.isnan(V[:, 0, 0])
+        ok = ~np.all(np.isnan(V), axis=(1, 2))  # failed samples are all NaN
         for j in range(k):
             a = axes[j]
             Vj = V[ok, :, j]
             if faint:
                 for row in Vj[:max_lines]:
-                    a.plot(self.t, row, color="0.4", lw=0.5, alpha=min(0.6, 8.0 / max(len(Vj), 1)))
+                    a.plot(grid, row, color="0.4", lw=0.5, alpha=min(0.6, 8.0 / max(len(Vj), 1)))
             for b, (lo, hi) in enumerate(sorted(bands, key=lambda p: p[1] - p[0], reverse=True)):
-                plo, phi = np.percentile(Vj, [lo, hi], axis=0)
-                a.fill_between(self.t, plo, phi, color=color, alpha=0.18 + 0.17 * b, lw=0,
+                plo, phi = _nanpercentile(Vj, [lo, hi])
+                a.fill_between(grid, plo, phi, color=color, alpha=0.18 + 0.17 * b, lw=0,
                                label=f"{lo:g}-{hi:g} %")
-            a.plot(self.t, np.median(Vj, axis=0), color=color, lw=1.6, label="median")
+            a.plot(grid, _nanpercentile(Vj, [50])[0], color=color, lw=1.6, label="median")
             label = name if k == 1 else f"{name}[{j}]"
             a.set_ylabel(label)
             a.grid(alpha=0.3)
@@ -331,10 +471,60 @@ class Ensemble:
 
 def _describe(s: Mapping) -> str:
     def one(v):
-        a = np.asarray(v, dtype=float).ravel()
+        try:
+            a = np.asarray(v, dtype=float).ravel()
+        except (TypeError, ValueError):  # not numbers (an OCP factory's argument): as given
+            return _short(v)
         return f"{a[0]:g}" if a.size == 1 else "[" + ", ".join(f"{x:g}" for x in a) + "]"
 
     return ", ".join(f"{k} = {one(v)}" for k, v in s.items()) or "defaults"
+
+
+def _times_of(entry) -> np.ndarray:
+    """The time grid of an entry: a Trajectory's or an OCPSolution's ``t``."""
+    return np.asarray(entry.t, dtype=float).ravel()
+
+
+def _rows_on(tt: np.ndarray, grid: np.ndarray) -> np.ndarray | None:
+    """For each time of ``grid``, the last row of ``tt`` at or before it (a jump's second row
+    when it is at that time), -1 where ``grid`` is outside ``tt``'s span (after a terminal
+    event); None when a grid time inside the span is not a row of ``tt`` (another grid).
+
+    >>> _rows_on(np.array([0.0, 0.5, 0.7, 0.7, 1.0]), np.array([0.0, 0.5, 1.0]))
+    array([0, 1, 4])
+    >>> _rows_on(np.array([0.0, 0.5, 0.5]), np.array([0.0, 0.5, 1.0]))
+    array([ 0,  2, -1])
+    """
+    if tt.shape == grid.shape and np.array_equal(tt, grid):
+        return np.arange(grid.size)
+    if tt.size == 0:
+        return None
+    idx = np.searchsorted(tt, grid, side="right") - 1
+    inside = (grid >= tt[0]) & (grid <= tt[-1])
+    if not np.array_equal(tt[idx[inside]], grid[inside]):
+        return None
+    idx[~inside] = -1
+    return idx
+
+
+def _nanpercentile(V: np.ndarray, q) -> np.ndarray:
+    """Percentiles over the samples (axis 0), NaN where no sample has a value, silently
+    (NumPy warns on an all-NaN column: times after every sample stopped)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanpercentile(V, q, axis=0)
+
+
+def _parquet_list(v):
+    """A cell of a Parquet list column: the vector, or null where there is none (a failed
+    sample's NaN), never a list of one NaN."""
+    if isinstance(v, (list, tuple)):
+        return list(v)
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return None
+    return [v]
 
 
 def _csv_value(v):
@@ -761,7 +951,7 @@ def ensemble(
         derivatives.
     t : array
         Output times, shared by all samples.
-    samples : list of dict, or dict of equal-length arrays
+    samples : list of dict, dict of equal-length arrays, or a pandas DataFrame (a row a sample)
         Keys are daekit names: a parameter (``"L"``) sets that parameter, a variable
         (``"p[0]"``, ``"der(p)"``) a fixed initial value, merged over ``fixed`` element by
         element (a sample's ``"p[0]"`` replaces that element of a shared ``fixed={"p": ...}``).
@@ -827,7 +1017,7 @@ def ensemble(
     _check_simulate_options(r, simulate_options)
     param_keys, var_keys = _split_keys(r, samp)
     if fixed:
-        _split_keys(r, [dict(fixed)])
+        _split_keys(r, [dict(fixed)], source="fixed")
     _check_shared(r, fixed, guess, params)
     shared_fixed, elements = _fixed_under_samples(r, fixed, var_keys)
     job = {

@@ -24,6 +24,50 @@ _DISTRIBUTIONS = {
 }
 
 
+def _finite(name: str, a, dist) -> float:
+    """``a`` as a finite float, else a ModelError naming the entry."""
+    try:
+        v = float(a)
+        ok = not isinstance(a, (bool, str, bytes)) and np.isfinite(v)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ModelError(f"sample: {name!r}: {dist!r}: {a!r} is not a finite number")
+    return v
+
+
+def _choices(name: str, dist) -> list[float]:
+    """The values of ``("choice", [values])``: a non-empty flat list of finite numbers."""
+    vals = dist[1]
+    if isinstance(vals, (str, bytes, Mapping)) or not hasattr(vals, "__len__"):
+        raise ModelError(f"sample: {name!r}: {dist!r}: choice takes a list of values, e.g. "
+                         "('choice', [0.5, 1.0, 2.0])")
+    if len(vals) == 0:
+        raise ModelError(f"sample: {name!r}: choice needs at least one value")
+    return [_finite(name, v, dist) for v in vals]
+
+
+def _check_shape(name: str, kind: str, nums: tuple, dist) -> None:
+    """The parameters of a distribution are in range (SciPy would return NaN otherwise)."""
+    if kind in ("uniform", "loguniform") and not nums[0] < nums[1]:
+        raise ModelError(f"sample: {name!r}: {kind} needs lo < hi, got {dist!r}")
+    if kind == "loguniform" and nums[0] <= 0:
+        raise ModelError(f"sample: {name!r}: loguniform needs 0 < lo, got {dist!r}")
+    if kind in ("normal", "lognormal", "truncnormal") and not nums[1] > 0:
+        raise ModelError(f"sample: {name!r}: the standard deviation must be > 0, got {dist!r}")
+    if kind == "truncnormal" and not nums[2] < nums[3]:
+        raise ModelError(f"sample: {name!r}: truncnormal (mean, std, lo, hi) needs lo < hi, "
+                         f"got {dist!r}")
+    if kind == "triangular":
+        lo, mode, hi = nums
+        if not lo < hi:
+            raise ModelError(f"sample: {name!r}: triangular (lo, mode, hi) needs lo < hi, "
+                             f"got {dist!r}")
+        if not lo <= mode <= hi:
+            raise ModelError(f"sample: {name!r}: triangular (lo, mode, hi) needs the mode in "
+                             f"[lo, hi], got {dist!r}")
+
+
 def _ppf(name: str, spec: tuple, u: np.ndarray) -> np.ndarray:
     """The inverse CDF of distribution ``spec`` at the uniform numbers ``u``."""
     from scipy import stats
@@ -56,7 +100,7 @@ def _ppf(name: str, spec: tuple, u: np.ndarray) -> np.ndarray:
 
 
 def sample(
-    spec: Mapping[str, Any], n: int, seed: int | None = 0, method: str = "random"
+    spec: Mapping[str, Any], n: int, seed: int = 0, method: str = "random"
 ) -> list[dict[str, float]]:
     """Draw ``n`` reproducible samples for :func:`ensemble` from distributions by name.
 
@@ -70,9 +114,11 @@ def sample(
     n : int
         Number of samples.
     seed : int
-        The same seed gives the same samples. Each name draws from its own stream
-        (seeded by ``seed`` and the name), so adding a name to ``spec`` does not change the
-        values drawn for the others.
+        A non-negative integer (default 0): the same seed gives the same samples, always.
+        Each name draws from its own stream (seeded by ``seed`` and the name), so adding a
+        name to ``spec`` does not change the values drawn for the others. ``None`` is
+        refused (it would mean either a fixed seed or irreproducible draws); for fresh
+        draws pick a seed and keep it, e.g. ``seed=secrets.randbits(32)``.
     method : ``"random"`` or ``"lhs"``
         Independent draws, or a Latin hypercube (each name's range cut into ``n`` equally
         probable strata, one draw in each, in random order; ``scipy.stats.qmc``).
@@ -101,35 +147,44 @@ def sample(
         raise ModelError(f"sample: n must be a positive integer, got {n!r}")
     if method not in ("random", "lhs"):
         raise ModelError(f"sample: method must be 'random' or 'lhs', got {method!r}")
+    # numpy's None is fresh entropy; here it would silently break "the same seed gives the
+    # same samples" (or silently be 0, as it once was): refused, as are negative and
+    # fractional seeds (numpy refuses the first, int() would truncate the second)
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+        raise ModelError(
+            f"sample: seed must be a non-negative integer (the same seed gives the same "
+            f"samples), got {seed!r}"
+            + ("; for fresh draws pick one and keep it, e.g. seed=secrets.randbits(32)"
+               if seed is None else "")
+        )
     n = int(n)
-    base = 0 if seed is None else int(seed)
+    base = int(seed)
     cols: dict[str, np.ndarray] = {}
     for name, dist in spec.items():
+        if not isinstance(name, str):
+            raise ModelError(f"sample: the names of spec are daekit names (str), got {name!r}")
         if isinstance(dist, (int, float, np.number)) and not isinstance(dist, bool):
-            cols[name] = np.full(n, float(dist))
+            cols[name] = np.full(n, _finite(name, dist, dist))
             continue
-        if not isinstance(dist, (tuple, list)) or not dist or dist[0] not in _DISTRIBUTIONS:
+        if (not isinstance(dist, (tuple, list)) or not dist or not isinstance(dist[0], str)
+                or dist[0] not in _DISTRIBUTIONS):
             raise ModelError(
                 f"sample: {name!r}: {dist!r} is not a distribution; use one of "
                 + ", ".join(f"({k!r}, ...)" for k in _DISTRIBUTIONS if k != "constant")
                 + " or a number"
             )
         kind, nargs = dist[0], _DISTRIBUTIONS[dist[0]]
-        if kind == "constant":
-            cols[name] = np.full(n, float(dist[1]))
-            continue
         if len(dist) - 1 != nargs:
-            raise ModelError(f"sample: {name!r}: {kind!r} takes {count(nargs, 'number')}, "
-                             f"got {dist!r}")
-        nums = dist[1:] if kind == "choice" else tuple(float(a) for a in dist[1:])
-        if kind in ("uniform", "loguniform") and not nums[0] < nums[1]:
-            raise ModelError(f"sample: {name!r}: {kind} needs lo < hi, got {dist!r}")
-        if kind in ("normal", "lognormal", "truncnormal") and not nums[1] > 0:
-            raise ModelError(f"sample: {name!r}: the standard deviation must be > 0, got {dist!r}")
-        if kind == "loguniform" and nums[0] <= 0:
-            raise ModelError(f"sample: {name!r}: loguniform needs 0 < lo, got {dist!r}")
-        if kind == "choice" and len(nums[0]) == 0:
-            raise ModelError(f"sample: {name!r}: choice needs at least one value")
+            what = "a list of values" if kind == "choice" else count(nargs, "number")
+            raise ModelError(f"sample: {name!r}: {kind!r} takes {what}, got {dist!r}")
+        if kind == "choice":
+            nums = (_choices(name, dist),)
+        else:
+            nums = tuple(_finite(name, a, dist) for a in dist[1:])
+        if kind == "constant":
+            cols[name] = np.full(n, nums[0])
+            continue
+        _check_shape(name, kind, nums, dist)
         stream = [base, zlib.crc32(name.encode())]
         if method == "lhs":
             from scipy.stats import qmc

@@ -244,3 +244,21 @@ def test_one_comparison_among_many_residuals_is_found():
     res[1357] = m.der(x)[1357] <= -x[1357]
     with pytest.raises(ModelError, match=r"'mixed\[1357\]' is a comparison"):
         m.equation(ca.vertcat(*res), name="mixed")
+
+
+def test_der_of_a_whole_vector_is_its_elements_derivatives():
+    """m.der of a whole vector (the fast path) is the vector of its elements' derivatives, of
+    any order, and still refuses algebraic variables and parameters."""
+    m = dk.Model("vec")
+    x = m.state("x", 5)
+    z = m.algebraic("z", 3)
+    k = m.parameter("k", [1.0, 2.0])
+    for order in (1, 2):
+        whole = m.der(x, order)
+        assert ca.is_equal(whole, ca.vertcat(*[m.der(x[i], order) for i in range(5)]))
+    assert ca.is_equal(m.der(m.der(x)), m.der(x, 2))
+    assert ca.is_equal(m.der(x[1:3]), m.der(x)[1:3])
+    with pytest.raises(ModelError, match="algebraic variable 'z'"):
+        m.der(z)
+    with pytest.raises(ModelError, match="parameter"):
+        m.der(k)

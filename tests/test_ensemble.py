@@ -541,3 +541,71 @@ def test_ocp_sweep_starts_every_sample_from_the_ocps_own_parameters():
     ens = dk.ensemble_ocp(ocp, [{"M": 2.0}, {"c": 0.5}], warm_start=False, progress=False)
     assert [round(row["objective"], 6) for row in ens.summary()] == [48.0, 12.25]
     assert ocp.parameter_values() == {"M": 1.0, "c": 0.0}
+
+
+def test_a_sample_replaces_a_shared_value_under_another_name_of_the_same_quantity():
+    """In the reduced 3D pendulum der(p)[1] is v[1]: a sample's "der(p)[1]" (or "der(p,1)[1]",
+    "der(p)") replaces the shared "v[1]" as a sample's "v[1]" does; at rest elsewhere the
+    velocity v = (0, 0.5, 0) is tangent at p = (0.6, 0, -0.8) (p . v = 0)."""
+    r = dk.reduce_index(dk.examples.pendulum3d())
+    t = np.linspace(0, 0.1, 3)
+    shared = {"p": [0.6, 0.0, -0.8], "v": [0.0, 0.0, 0.0]}
+    for s in ({"der(p)[1]": 0.5}, {"der(p,1)[1]": 0.5}, {"v[1]": 0.5}, {"der(p)": [0, 0.5, 0]}):
+        ens = dk.ensemble(r, t, [s], executor="serial", fixed=shared, progress=False)
+        assert ens.failures == {}, (s, ens.failures)
+        assert np.allclose(ens[0]["v"][0], [0.0, 0.5, 0.0], atol=1e-12)
+    with pytest.raises(dk.ModelError, match=r"fixed sets 'v\[1\]' twice \(by 'v\[1\]' and 'v'\)"):
+        dk.ensemble(r, t, [{"L": 1.0}], executor="serial",
+                    fixed={"p": [0.6, 0, -0.8], "v[1]": 0.5, "v": [0, 0, 0]})
+
+
+def test_shared_values_and_sample_values_are_checked_before_anything_runs(planar, monkeypatch):
+    import importlib
+
+    ens_mod = importlib.import_module("daekit.ensemble")
+
+    def must_not_run(*a, **k):
+        raise AssertionError("a sample ran")
+
+    monkeypatch.setattr(ens_mod, "_run_one", must_not_run)
+    with pytest.raises(dk.ModelError, match=r"fixed: the value of 'der\(x\)' must be a number"):
+        dk.ensemble(planar, T_GRID, [{"L": 1.0}], executor="serial", fixed={"der(x)": "abc"})
+    with pytest.raises(dk.ModelError, match=r"'der\(x\)' has 1 element .* 2 values"):
+        dk.ensemble(planar, T_GRID, [{"L": 1.0}], executor="serial", fixed={"der(x)": [0, 0]})
+    with pytest.raises(dk.ModelError, match="a key of fixed is 0"):
+        dk.ensemble(planar, T_GRID, [{"L": 1.0}], executor="serial", fixed={0: 0.0})
+    with pytest.raises(dk.ModelError, match="sample 0 sets 'x' to nan, which is not finite"):
+        dk.ensemble(planar, T_GRID, [{"x": np.nan}], executor="serial")
+    with pytest.raises(dk.ModelError, match=r"^ensemble: stabilization='dummy_derivatives'"):
+        dk.ensemble(planar, T_GRID, [{"x": 0.5}], executor="serial",
+                    stabilization="dummy_derivatives")
+
+
+def test_missing_cells_of_a_dataframe_are_names_that_row_does_not_set(planar):
+    """pd.DataFrame([{"L": 2.0}, {"g": 4.0}]): row 0 sets L only (g stays 9.81), row 1 g only
+    (L stays 1), as the list of those two dicts would."""
+    pd = pytest.importorskip("pandas")
+    df = pd.DataFrame([{"L": 2.0}, {"g": 4.0}])
+    ens = dk.ensemble(planar, np.linspace(0, 0.2, 3), df, executor="serial",
+                      guess={"x": 0.5, "y": -0.8}, fixed={"der(x)": 0.0}, progress=False)
+    assert ens.failures == {}
+    assert ens.samples == [{"L": 2.0}, {"g": 4.0}]
+    assert (ens[0]["L"][0], ens[0]["g"][0]) == (2.0, 9.81)
+    assert (ens[1]["L"][0], ens[1]["g"][0]) == (1.0, 4.0)
+    for tr, L in zip(ens, (2.0, 1.0), strict=True):  # on the rod of its own length
+        assert np.allclose(tr["x"] ** 2 + tr["y"] ** 2, L**2, rtol=1e-7)
+
+
+def test_an_input_that_cannot_be_pickled_is_named():
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    lock = threading.Lock()
+
+    def u(t, lock=lock):
+        return np.sin(t)
+
+    with ThreadPoolExecutor(1) as pool, pytest.raises(
+            dk.ModelError, match=r"input 'u' cannot be pickled \(TypeError"):
+        dk.ensemble(dk.examples.l2(), np.linspace(0, 1, 5), [{}], executor=pool,
+                    inputs={"u": u, "der(u)": np.cos, "der(u,2)": lambda t: -np.sin(t)})

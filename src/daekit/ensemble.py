@@ -90,7 +90,11 @@ def _as_sample_list(samples) -> list[dict]:
             and not isinstance(samples, Mapping):
         for c in samples.columns:
             _check_key(c, "a column of the DataFrame of samples")
-        samples = samples.to_dict(orient="records")
+        # a missing cell (NaN) is a name that row does not set: pd.DataFrame([{"L": 1.0},
+        # {"g": 9.0}]) means what the list of those two dicts means
+        samples = [{k: v for k, v in row.items()
+                    if not (isinstance(v, (float, np.floating)) and math.isnan(v))}
+                   for row in samples.to_dict(orient="records")]
     if isinstance(samples, Mapping):
         if not samples:
             raise ModelError("ensemble: samples is an empty dict; give e.g. {'L': [0.5, 1.0]}")
@@ -151,7 +155,10 @@ def _numbers(v, what: str, max_ndim: int) -> np.ndarray:
         shape = ("a number or a flat list of numbers (a vector)" if max_ndim == 1 else
                  "one number (or one flat list of numbers) per sample")
         raise ModelError(f"ensemble: {what} {_short(v)}, which is not {shape}")
-    return raw.astype(float)
+    out = raw.astype(float)
+    if not np.isfinite(out).all():
+        raise ModelError(f"ensemble: {what} {_short(v)}, which is not finite")
+    return out
 
 
 def _short(v) -> str:
@@ -178,6 +185,7 @@ def _split_keys(r, samples: list[dict], source: str = "sample") -> tuple[set[str
         for k in s:
             if k in params or k in variables:
                 continue
+            _check_key(k, f"a key of {who}")
             try:
                 expand_name(k, pmap)
                 params.add(k)
@@ -551,6 +559,26 @@ def _dumps(obj) -> bytes:
     except ImportError:
         return pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
     return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _has_cloudpickle() -> bool:
+    try:
+        import cloudpickle  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _shippable(obj) -> bool:
+    """Whether :func:`_dumps` can serialize ``obj`` alone (to name an input that cannot)."""
+    import casadi as ca
+
+    try:
+        with ca.global_pickle_context():
+            _dumps(obj)
+    except Exception:  # noqa: BLE001
+        return False
+    return True
 
 
 def _pack_system(r, inputs) -> bytes:
@@ -1018,8 +1046,8 @@ def ensemble(
     param_keys, var_keys = _split_keys(r, samp)
     if fixed:
         _split_keys(r, [dict(fixed)], source="fixed")
-    _check_shared(r, fixed, guess, params)
-    shared_fixed, elements = _fixed_under_samples(r, fixed, var_keys)
+    fixed_values = _check_shared(r, fixed, guess, params)
+    shared_fixed, elements = _fixed_under_samples(r, fixed_values, var_keys)
     job = {
         "t": tg, "fixed": shared_fixed, "guess": dict(guess) if guess else None,
         "params_base": dict(params or {}), "inputs": inputs, "options": simulate_options,
@@ -1058,11 +1086,14 @@ def ensemble(
             key = hashlib.sha1(blob).hexdigest()
         else:  # the system alone: serialized once per system (22 ms for the 3D pendulum)
             blob, key = r.derived("ensemble-blob", _packed_alone)
-    except Exception:  # noqa: BLE001
+    except Exception as exc:  # noqa: BLE001
+        culprit = next((k for k, v in (inputs or {}).items() if not _shippable(v)), None)
         raise ModelError(
-            "ensemble: the inputs cannot be sent to worker processes (a local Python "
-            "function without cloudpickle installed?); give them as CasADi expressions of "
-            "time, install cloudpickle, or use executor='serial'"
+            "ensemble: the inputs cannot be sent to worker processes"
+            + (f": input {culprit!r} cannot be pickled" if culprit else "")
+            + f" ({type(exc).__name__}: {exc}); give them as CasADi expressions of time, "
+            + ("" if _has_cloudpickle() else "install cloudpickle, ")
+            + "or use executor='serial'"
         ) from None
     try:
         payload_job = dict(job, inputs=None)
@@ -1188,18 +1219,12 @@ def _run_elsewhere(r, executor, key: str, blob: bytes, inputs, indexed: list, ch
 def _check_simulate_options(r, opts: Mapping) -> None:
     """The options every sample shares, checked once here (not failing every sample)."""
     from .inputs import InputError
-    from .simulate.dispatch import STABILIZATIONS, check_stabilization
+    from .simulate.dispatch import check_stabilization
 
-    stab = opts.get("stabilization")
-    if isinstance(stab, str) and stab.lower() == "none":
-        stab = None
-    if stab not in STABILIZATIONS:
-        raise ModelError(f"ensemble: unknown stabilization {stab!r}; use "
-                         + ", ".join(repr(s) for s in STABILIZATIONS))
     try:
-        check_stabilization(r, stab)
+        check_stabilization(r, opts.get("stabilization"))
     except InputError as exc:
-        raise ModelError(f"ensemble: {exc}") from None
+        raise ModelError("ensemble: " + str(exc).removeprefix("simulate: ")) from None
     if opts.get("method", "idas") not in ("idas", "rattle"):
         raise ModelError(f"ensemble: unknown method {opts['method']!r}; use 'idas' or 'rattle'")
     if opts.get("method", "idas") == "idas":
@@ -1218,15 +1243,22 @@ def _check_simulate_options(r, opts: Mapping) -> None:
 
 
 def _check_shared(r, fixed: Mapping | None, guess: Mapping | None,
-                  params: Mapping | None) -> None:
-    """The initial values, guesses and parameters every sample shares, checked once here: a
-    mistake there would fail every sample with the same message."""
+                  params: Mapping | None) -> dict[str, tuple[list[str], np.ndarray]]:
+    """The initial values, guesses and parameters every sample shares, checked once here (a
+    mistake there would fail every sample with the same message): names (a parameter in
+    ``fixed`` or ``guess`` is refused), values (initialize's own rule,
+    :func:`daekit.initialize.checked_values`), an element fixed twice. Returns
+    ``{key of fixed: (element names, values)}``."""
+    from .initialize import InitializationError, checked_values
     from .inputs import InputError, resolve_params
     from .model import NameNotFoundError, expand_name
 
     pmap = dict.fromkeys(r.p_names, 0)
+    fixed_values: dict[str, tuple[list[str], np.ndarray]] = {}
+    by_quantity: dict = {}  # quantity -> the key of fixed that sets it
     for what, given in (("fixed", fixed), ("guess", guess)):
-        for k in given or {}:
+        for k, v in (given or {}).items():
+            _check_key(k, f"a key of {what}")
             try:  # a parameter first, as for the samples' names (_split_keys)
                 expand_name(k, pmap)
             except NameNotFoundError:
@@ -1237,42 +1269,61 @@ def _check_shared(r, fixed: Mapping | None, guess: Mapping | None,
                     "values with params={...} (shared) or in the samples"
                 )
             try:
-                expand_name(k, r.variables, "the model's variables")
-            except NameNotFoundError as exc:
-                raise ModelError(f"ensemble: {what}: {exc}") from None
+                els = expand_name(k, r.variables, "the model's variables")
+                vals = checked_values(len(els), els, k, v, what)
+            except (NameNotFoundError, InitializationError) as exc:
+                raise ModelError(f"ensemble: {what}: {exc}".replace(f"{what}: {what}: ",
+                                                                     f"{what}: ")) from None
+            if what != "fixed":
+                continue
+            fixed_values[k] = (els, vals)
+            for e in els:
+                q = _quantity(r, e)
+                if q in by_quantity:
+                    raise ModelError(
+                        f"ensemble: fixed sets {e!r} twice (by {by_quantity[q]!r} and {k!r}); "
+                        "give each value once"
+                    )
+                by_quantity[q] = k
     try:
         resolve_params(r, params)
     except InputError as exc:
         raise ModelError(f"ensemble: {exc}") from None
+    return fixed_values
 
 
-def _fixed_under_samples(r, fixed: Mapping | None, var_keys) -> tuple[dict, dict]:
-    """``(fixed values, elements)``: the shared fixed values, those that a sample's variable
-    names overlap split into their elements (a sample's ``"p[0]"`` then replaces that element
-    of a shared ``"p"``, and a sample's ``"p"`` a shared ``"p[0]"``), and the element names of
-    every variable name the samples set."""
+def _quantity(r, element: str):
+    """What an element name stands for: its symbol (``der(p)[1]`` and ``v[1]`` are one
+    quantity where ``v = der(p)``), else the name."""
+    sym = r.variables.get(element)
+    if hasattr(sym, "is_symbolic") and sym.numel() == 1 and sym.is_symbolic():
+        return sym.element_hash()
+    return element
+
+
+def _fixed_under_samples(r, fixed_values: Mapping, var_keys) -> tuple[dict, dict]:
+    """``(fixed values, replaced)``: the shared fixed values (``fixed_values`` from
+    :func:`_check_shared`), those that a sample's variable names overlap split into their
+    elements, and for every variable name the samples set the shared elements it replaces,
+    by quantity (a sample's ``"p[0]"`` replaces that element of a shared ``"p"``, a sample's
+    ``"p"`` a shared ``"p[0]"``, a sample's ``"der(p)[1]"`` a shared ``"v[1]"`` where
+    ``v = der(p)``)."""
     from .model import expand_name
 
-    elements = {k: expand_name(k, r.variables) for k in var_keys}
-    covered = {e for els in elements.values() for e in els}
+    quantities = {k: {_quantity(r, e) for e in expand_name(k, r.variables)} for k in var_keys}
+    covered = set().union(*quantities.values()) if quantities else set()
     out: dict = {}
-    for k, v in (fixed or {}).items():
-        els = expand_name(k, r.variables)
-        if covered.isdisjoint(els):
-            out[k] = v
+    owner: dict = {}  # quantity -> the shared element name that sets it
+    for k, (els, vals) in fixed_values.items():
+        qs = [_quantity(r, e) for e in els]
+        if covered.isdisjoint(qs):
+            out[k] = vals.tolist() if len(els) > 1 else float(vals[0])
             continue
-        try:
-            vals = np.asarray(v, dtype=float).ravel()
-        except (TypeError, ValueError):
-            raise ModelError(f"ensemble: fixed[{k!r}] must be a number or a list of numbers, "
-                             f"got {v!r}") from None
-        if vals.size == 1:
-            vals = np.repeat(vals, len(els))
-        if vals.size != len(els):
-            raise ModelError(f"ensemble: fixed[{k!r}] has {len(els)} elements "
-                             f"({', '.join(els)}) but {vals.size} values were given")
-        out.update({e: float(x) for e, x in zip(els, vals.tolist(), strict=True)})
-    return out, elements
+        for e, q, x in zip(els, qs, vals.tolist(), strict=True):
+            out[e] = x
+            owner[q] = e
+    replaced = {k: [owner[q] for q in qs if q in owner] for k, qs in quantities.items()}
+    return out, replaced
 
 
 def _apply_reduce(res: dict, reduce: Callable, keep: str) -> None:

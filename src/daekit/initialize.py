@@ -79,7 +79,7 @@ from .points import system_jacobians
 from .threads import blas_threads, gc_paused, limit_blas_threads
 from .wording import count
 
-__all__ = ["InitialValues", "initialize"]
+__all__ = ["InitialValues", "checked_values", "initialize"]
 
 #: Systems with at least this many unknowns ``nx + nz`` take the sparse path (sparse
 #: Jacobians, SuperLU on KKT systems, a matched basis of the consistency rows); smaller ones
@@ -247,11 +247,11 @@ def _name_values(r, key: str, val, what: str, row_of, names_of: dict | None = No
 def _with_values(elems: list[str], key: str, val, what: str, row_of
                  ) -> list[tuple[str, int, float]]:
     """The values ``val`` given for ``key`` (elements ``elems``), checked."""
-    arr = _checked_values(len(elems), elems, key, val, what)
+    arr = checked_values(len(elems), elems, key, val, what)
     return [(e, row_of[e], float(v)) for e, v in zip(elems, arr.tolist(), strict=True)]
 
 
-def _checked_values(size: int, elems: list[str], key: str, val, what: str) -> np.ndarray:
+def checked_values(size: int, elems: list[str], key: str, val, what: str) -> np.ndarray:
     """The ``size`` values ``val`` given for ``key`` (elements ``elems``) as floats: one
     number for all of them or one per element, finite; else InitializationError."""
     try:
@@ -552,7 +552,7 @@ class _Plan:
 def _checked_array(keys: list, values: Mapping, what: str) -> np.ndarray:
     """The values of ``keys`` (a plan's ``(name, elements)`` pairs), checked and concatenated
     in the plan's element order."""
-    parts = [_checked_values(len(el), el, k, values[k], what) for k, el in keys]
+    parts = [checked_values(len(el), el, k, values[k], what) for k, el in keys]
     return np.concatenate(parts) if parts else np.zeros(0)
 
 

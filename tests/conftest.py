@@ -19,3 +19,18 @@ def circle_system():
     return ReducedDAE(t, x, z, ca.SX(0, 1), ca.SX(0, 1), ca.vertcat(-x[1], x[0]), z - x[0],
                       ca.dot(x, x) - 1, ["circle"], ["x[0]", "x[1]"], ["z"], [], [],
                       np.zeros(0))
+
+
+@pytest.fixture
+def forbid(monkeypatch):
+    """``forbid("daekit.initialize", "initialize")``: calling that function fails the test
+    (for what must be checked before any work starts)."""
+    import sys
+
+    def _forbid(module: str, name: str) -> None:
+        def never(*args, **kwargs):
+            raise AssertionError(f"{module}.{name} ran")
+
+        monkeypatch.setattr(sys.modules[module], name, never)
+
+    return _forbid

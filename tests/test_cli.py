@@ -194,14 +194,9 @@ SWEEP = ["sweep", "pendulum_planar", "--param", "L=0.5:2.0:3", "--t-end", "0.5",
 
 
 @pytest.fixture
-def no_sweep(monkeypatch):
+def no_sweep(forbid):
     """daekit.ensemble.ensemble fails the test: the sweep must not start."""
-    import sys
-
-    def never(*args, **kwargs):
-        raise AssertionError("the sweep ran")
-
-    monkeypatch.setattr(sys.modules["daekit.ensemble"], "ensemble", never)
+    forbid("daekit.ensemble", "ensemble")
 
 
 @pytest.mark.parametrize("out, message", [

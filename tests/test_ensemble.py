@@ -559,15 +559,8 @@ def test_a_sample_replaces_a_shared_value_under_another_name_of_the_same_quantit
                     fixed={"p": [0.6, 0, -0.8], "v[1]": 0.5, "v": [0, 0, 0]})
 
 
-def test_shared_values_and_sample_values_are_checked_before_anything_runs(planar, monkeypatch):
-    import importlib
-
-    ens_mod = importlib.import_module("daekit.ensemble")
-
-    def must_not_run(*a, **k):
-        raise AssertionError("a sample ran")
-
-    monkeypatch.setattr(ens_mod, "_run_one", must_not_run)
+def test_shared_values_and_sample_values_are_checked_before_anything_runs(planar, forbid):
+    forbid("daekit.ensemble", "_run_one")
     with pytest.raises(dk.ModelError, match=r"fixed: the value of 'der\(x\)' must be a number"):
         dk.ensemble(planar, T_GRID, [{"L": 1.0}], executor="serial", fixed={"der(x)": "abc"})
     with pytest.raises(dk.ModelError, match=r"'der\(x\)' has 1 element .* 2 values"):

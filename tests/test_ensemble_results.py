@@ -206,14 +206,9 @@ FIXED = {"p": [0.6, 0.0, -0.8], "v": [0.0, 1.0, 0.0]}
 
 
 @pytest.fixture
-def nothing_runs(monkeypatch):
+def nothing_runs(forbid):
     """initialize fails the test: the checks must come before any sample runs."""
-    import sys
-
-    def never(*args, **kwargs):
-        raise AssertionError("a sample ran")
-
-    monkeypatch.setattr(sys.modules["daekit.initialize"], "initialize", never)
+    forbid("daekit.initialize", "initialize")
 
 
 @pytest.mark.parametrize("samples, message", [

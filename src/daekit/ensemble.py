@@ -171,6 +171,17 @@ def _plain(v):
     return float(a) if a.ndim == 0 else a.tolist()
 
 
+def _names(name: str, keys) -> bool:
+    """Whether ``name`` names elements among ``keys`` (:func:`daekit.model.expand_name`)."""
+    from .model import NameNotFoundError, expand_name
+
+    try:
+        expand_name(name, keys)
+    except NameNotFoundError:
+        return False
+    return True
+
+
 def _split_keys(r, samples: list[dict], source: str = "sample") -> tuple[set[str], set[str]]:
     """(parameter keys, variable keys) used by the samples; unknown names and inputs raise
     ModelError. ``source`` says where the names come from in the messages: ``"sample"``
@@ -186,17 +197,10 @@ def _split_keys(r, samples: list[dict], source: str = "sample") -> tuple[set[str
             if k in params or k in variables:
                 continue
             _check_key(k, f"a key of {who}")
-            try:
-                expand_name(k, pmap)
+            if _names(k, pmap):
                 params.add(k)
                 continue
-            except NameNotFoundError:
-                pass
-            try:
-                expand_name(k, umap)
-            except NameNotFoundError:
-                pass
-            else:  # an input is a function of time, not an initial value to fix
+            if _names(k, umap):  # an input is a function of time, not an initial value
                 raise ModelError(
                     f"ensemble: {who} sets {k!r}, an input of the model; give inputs with "
                     "inputs={...}"
@@ -375,14 +379,23 @@ class Ensemble:
         """The times of :meth:`values`, :meth:`percentiles` and :meth:`plot`: :attr:`t` for
         :func:`ensemble`; for :func:`ensemble_ocp` the solutions' own grid when they all
         share one (else a ModelError: read them one at a time, ``ens[i].t``)."""
-        kept = [(i, tr) for i, tr in enumerate(self) if tr is not None]
-        increasing = self.t.ndim == 1 and self.t.size >= 2 and bool(np.all(np.diff(self.t) > 0))
-        if not kept or (increasing and all(_rows_on(_times_of(tr), self.t) is not None
-                                           for _, tr in kept)):
-            return self.t
+        return self._rows_on_grid()[0]
+
+    def _rows_on_grid(self) -> tuple[np.ndarray, list]:
+        """``(grid, rows)``: :attr:`grid` and, for every entry, its rows at those times
+        (:func:`_rows_on`; None for a failed sample)."""
+        entries = list(self)
+        kept = [(i, tr) for i, tr in enumerate(entries) if tr is not None]
+        if self.t.ndim == 1 and self.t.size >= 2 and bool(np.all(np.diff(self.t) > 0)):
+            rows = [None if tr is None else _rows_on(_times_of(tr), self.t) for tr in entries]
+            if all(rows[i] is not None for i, _ in kept):
+                return self.t, rows
+        elif not kept:
+            return self.t, [None] * len(entries)
         grids = [_times_of(tr) for _, tr in kept]
         if all(g.shape == grids[0].shape and np.array_equal(g, grids[0]) for g in grids[1:]):
-            return grids[0]
+            every = np.arange(grids[0].size)
+            return grids[0], [None if tr is None else every for tr in entries]
         shown = "; ".join(f"sample {i}: {g.size} times from {g[0]:g} to {g[-1]:g}"
                           for (i, _), g in list(zip(kept, grids, strict=True))[:3] if g.size)
         raise ModelError(
@@ -398,13 +411,16 @@ class Ensemble:
         before and after it); each is read at the output times, the value of its last row at
         or before each time (so a jump exactly at an output time gives the value after it),
         and is NaN at the output times after a terminal event stopped it."""
-        grid = self.grid
+        return self._values_on_grid(name)[1]
+
+    def _values_on_grid(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(grid, values)`` of :meth:`values`."""
+        grid, rows = self._rows_on_grid()
         got = []
-        for tr in self:
+        for tr, idx in zip(self, rows, strict=True):
             if tr is None:
                 got.append(None)
                 continue
-            idx = _rows_on(_times_of(tr), grid)  # not None: grid checked it
             v = np.asarray(tr[name], dtype=float)
             out = v[np.maximum(idx, 0)]
             out[idx < 0] = np.nan
@@ -412,8 +428,8 @@ class Ensemble:
         tail = next((g.shape[1:] for g in got if g is not None), None)
         if tail is None:
             raise ModelError(f"ensemble: no successful trajectory holds {name!r}")
-        return np.stack([g if g is not None else np.full((grid.size, *tail), np.nan)
-                         for g in got])
+        return grid, np.stack([g if g is not None else np.full((grid.size, *tail), np.nan)
+                               for g in got])
 
     def percentiles(self, name: str, q: Sequence[float] = (5, 50, 95)) -> np.ndarray:
         """Percentiles ``q`` of ``name`` across the successful samples at every time of
@@ -432,8 +448,7 @@ class Ensemble:
         """
         import matplotlib.pyplot as plt
 
-        grid = self.grid
-        V = self.values(name)
+        grid, V = self._values_on_grid(name)
         if V.ndim == 2:
             V = V[:, :, None]
         k = V.shape[2]
@@ -479,10 +494,7 @@ class Ensemble:
 
 def _describe(s: Mapping) -> str:
     def one(v):
-        try:
-            a = np.asarray(v, dtype=float).ravel()
-        except (TypeError, ValueError):  # not numbers (an OCP factory's argument): as given
-            return _short(v)
+        a = np.asarray(v, dtype=float).ravel()  # numbers: checked by _as_sample_list
         return f"{a[0]:g}" if a.size == 1 else "[" + ", ".join(f"{x:g}" for x in a) + "]"
 
     return ", ".join(f"{k} = {one(v)}" for k, v in s.items()) or "defaults"
@@ -1259,21 +1271,19 @@ def _check_shared(r, fixed: Mapping | None, guess: Mapping | None,
     for what, given in (("fixed", fixed), ("guess", guess)):
         for k, v in (given or {}).items():
             _check_key(k, f"a key of {what}")
-            try:  # a parameter first, as for the samples' names (_split_keys)
-                expand_name(k, pmap)
-            except NameNotFoundError:
-                pass
-            else:
+            if _names(k, pmap):  # a parameter first, as for the samples' names (_split_keys)
                 raise ModelError(
                     f"ensemble: {what} sets {k!r}, a parameter of the model; give parameter "
                     "values with params={...} (shared) or in the samples"
                 )
             try:
                 els = expand_name(k, r.variables, "the model's variables")
+            except NameNotFoundError as exc:
+                raise ModelError(f"ensemble: {what}: {exc}") from None
+            try:  # its messages name `what` themselves
                 vals = checked_values(len(els), els, k, v, what)
-            except (NameNotFoundError, InitializationError) as exc:
-                raise ModelError(f"ensemble: {what}: {exc}".replace(f"{what}: {what}: ",
-                                                                     f"{what}: ")) from None
+            except InitializationError as exc:
+                raise ModelError(f"ensemble: {exc}") from None
             if what != "fixed":
                 continue
             fixed_values[k] = (els, vals)
